@@ -1,0 +1,238 @@
+"""The fixed diagonal (trot) Bézier gait, evaluated in torch for many envs at once.
+
+The gait is open loop in its phase: a function of phase alone, so the foot
+targets of a whole control period (K physics substeps) for N envs come out of
+one vectorised call. Each leg alternates a straight stance sweep (front to
+back, on the stance line) and a Bézier swing (back to front, above it). The
+diagonal pairs FL+RR and FR+RL are half a cycle apart.
+
+Stride convention: ``step_length`` is the distance the body advances per gait
+cycle when the feet do not slip. A foot is on the ground for
+``duty_factor * cycle_time`` and sweeps ``duty_factor * step_length`` in that
+time, so the body's speed is ``step_length / cycle_time``, the spec's expected
+velocity.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import torch
+from torch import Tensor
+
+from rwalk.kinematics import LegGeometry, leg_ik
+
+#: Phase offset of each leg (FL, FR, RL, RR): diagonal pairs in step.
+TROT_OFFSETS: tuple[float, ...] = (0.0, 0.5, 0.5, 0.0)
+
+
+@dataclass(frozen=True)
+class GaitParameters:
+    """Parameters of the base trot. Lengths in metres, times in seconds."""
+
+    step_height: float = 0.025
+    """Height of the swing apex above the stance line."""
+    step_length: float = 0.08
+    """Stride: distance the body advances per cycle without slip."""
+    cycle_time: float = 0.6
+    """Duration of one gait cycle."""
+    body_height: float = 0.07
+    """Commanded height of the hip points above the ground."""
+    duty_factor: float = 0.65
+    """Fraction of the cycle a foot spends in stance. Above 0.5 the diagonal pairs
+    overlap with all four feet down, which stops the body rocking about the
+    diagonal support line (at 0.5 the robot slipped to ~55% of its speed)."""
+    stance_depth: float = 0.005
+    """How far below the ground surface the stance line is commanded, so the
+    position servos press the feet into the ground rather than hover."""
+    foot_spread: float = 0.0
+    """Extra sideways offset of every foot, outwards positive."""
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"GaitParameters.{f.name} must be a finite number, got {value!r}")
+        positive = ("step_height", "cycle_time", "body_height")
+        for name in positive:
+            if getattr(self, name) <= 0:
+                raise ValueError(f"GaitParameters.{name} must be > 0, got {getattr(self, name)!r}")
+        if self.step_length < 0:
+            raise ValueError(f"GaitParameters.step_length must be >= 0, got {self.step_length!r}")
+        if not 0.0 < self.duty_factor < 1.0:
+            raise ValueError(
+                f"GaitParameters.duty_factor must be in (0, 1), got {self.duty_factor!r}"
+            )
+        if self.stance_depth < 0:
+            raise ValueError(f"GaitParameters.stance_depth must be >= 0, got {self.stance_depth!r}")
+        if self.step_height >= self.body_height:
+            raise ValueError(
+                f"GaitParameters.step_height ({self.step_height!r}) must be below "
+                f"body_height ({self.body_height!r}): the swing foot would rise above the hip"
+            )
+
+    @property
+    def expected_velocity(self) -> float:
+        """Forward speed of the gait without slip: step_length / cycle_time. m/s."""
+        return self.step_length / self.cycle_time
+
+    @property
+    def stance_sweep(self) -> float:
+        """Distance a stance foot travels relative to the body: duty x stride. Metres."""
+        return self.duty_factor * self.step_length
+
+
+def bernstein_curve(points: Tensor, t: Tensor) -> Tensor:
+    """Evaluate a Bézier curve.
+
+    Args:
+        points: control points. Shape: (n + 1, D).
+        t: curve parameters in [0, 1]. Shape: (...).
+
+    Returns:
+        Points on the curve. Shape: (..., D).
+    """
+    n = points.shape[0] - 1
+    i = torch.arange(n + 1, dtype=t.dtype, device=t.device)
+    binom = torch.tensor([math.comb(n, k) for k in range(n + 1)], dtype=t.dtype, device=t.device)
+    tt = t.unsqueeze(-1)
+    weights = binom * tt**i * (1.0 - tt) ** (n - i)
+    return weights @ points.to(t.dtype)
+
+
+def swing_control_points(duty_factor: float) -> Tensor:
+    """Normalised swing curve: x in half-sweeps (-1 -> +1), z in step heights.
+
+    Degree 6. The end tangents match the stance velocity, so a foot leaves and
+    meets the ground at zero ground speed (no scuffing, no touchdown slip). The
+    vertical velocity is zero at both ends and the apex (t = 0.5) is exactly 1.
+    Shape: (7, 2).
+    """
+    degree = 6
+    # Stance speed in half-sweeps per unit of the swing parameter: the stance
+    # covers 2 half-sweeps in duty*T, the swing lasts (1-duty)*T.
+    overshoot = 2.0 * (1.0 - duty_factor) / duty_factor / degree
+    lift = 64.0 / 50.0  # makes z(0.5) = 1 for z-controls (0, 0, h, h, h, 0, 0)
+    x = [-1.0, -1.0 - overshoot, -1.0 - overshoot, 0.0, 1.0 + overshoot, 1.0 + overshoot, 1.0]
+    z = [0.0, 0.0, lift, lift, lift, 0.0, 0.0]
+    return torch.tensor([x, z], dtype=torch.float64).T
+
+
+class BezierGaitController:
+    """Diagonal trot foot targets and joint targets for N envs and K substeps.
+
+    Args:
+        params: the gait.
+        geometry: the legs (for the hip positions, foot radius and IK).
+        dt: physics timestep, seconds.
+        dtype: dtype of everything it returns.
+    """
+
+    def __init__(
+        self,
+        params: GaitParameters | None = None,
+        geometry: LegGeometry | None = None,
+        dt: float = 0.002,
+        dtype: torch.dtype = torch.float64,
+    ) -> None:
+        self.params = params if params is not None else GaitParameters()
+        self.geometry = geometry if geometry is not None else LegGeometry()
+        if not (dt > 0 and math.isfinite(dt)):
+            raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
+        self.dt = dt
+        self.dtype = dtype
+        self.leg_offsets = torch.tensor(TROT_OFFSETS, dtype=dtype)
+        self.swing_points = swing_control_points(self.params.duty_factor).to(dtype)
+        p, g = self.params, self.geometry
+        # Stance line: foot centre one radius above the ground, pressed stance_depth into it.
+        self.stance_z = -p.body_height + g.foot_radius - p.stance_depth
+        spread = torch.tensor([1.0, -1.0, 1.0, -1.0], dtype=dtype) * p.foot_spread
+        self.neutral = torch.stack(
+            (
+                torch.zeros(4, dtype=dtype),
+                torch.tensor(g.abduction_offsets, dtype=dtype) + spread,
+                torch.full((4,), self.stance_z, dtype=dtype),
+            ),
+            dim=-1,
+        )
+        self._check_reachable()
+
+    def _check_reachable(self) -> None:
+        """Raise ValueError if the stance line cannot be reached (an impossible gait)."""
+        p = self.params
+        half = 0.5 * p.stance_sweep
+        probe = self.neutral.unsqueeze(0).repeat(3, 1, 1)
+        probe[0, :, 0] = half
+        probe[2, :, 0] = -half
+        _, ok = leg_ik(probe, self.geometry)
+        if not bool(ok.all()):
+            raise ValueError(
+                f"GaitParameters(body_height={p.body_height!r}, step_length={p.step_length!r}, "
+                f"duty_factor={p.duty_factor!r}, foot_spread={p.foot_spread!r}): the stance line is "
+                f"outside the legs' workspace (leg reach {self.geometry.min_knee_reach:.3f}.."
+                f"{self.geometry.max_knee_reach:.3f} m)"
+            )
+
+    @property
+    def phase_step(self) -> float:
+        """Phase advanced by one physics substep."""
+        return self.dt / self.params.cycle_time
+
+    def leg_phases(self, phase: Tensor) -> Tensor:
+        """Each leg's phase in [0, 1). (...,) -> (..., 4). Stance is [0, duty)."""
+        return torch.remainder(phase.unsqueeze(-1) + self.leg_offsets, 1.0)
+
+    def is_swing(self, phase: Tensor) -> Tensor:
+        """Swing flags per leg. (...,) -> (..., 4) bool."""
+        return self.leg_phases(phase) >= self.params.duty_factor
+
+    def foot_targets(self, phase: Tensor) -> tuple[Tensor, Tensor]:
+        """Base-gait foot targets in the hip frames.
+
+        Args:
+            phase: gait phase in [0, 1). Shape: (...).
+
+        Returns:
+            targets: foot-centre targets. Shape: (..., 4, 3).
+            swing: True for legs in swing. Shape: (..., 4).
+        """
+        p = self.params
+        leg_phase = self.leg_phases(phase)
+        swing = leg_phase >= p.duty_factor
+        half = 0.5 * p.stance_sweep
+        stance_s = leg_phase / p.duty_factor
+        swing_t = torch.clamp((leg_phase - p.duty_factor) / (1.0 - p.duty_factor), 0.0, 1.0)
+        curve = bernstein_curve(self.swing_points, swing_t)
+        x = torch.where(swing, half * curve[..., 0], half * (1.0 - 2.0 * stance_s))
+        z = self.stance_z + torch.where(swing, p.step_height * curve[..., 1], 0.0)
+        targets = self.neutral.expand(*x.shape, 3).clone()
+        targets[..., 0] = x
+        targets[..., 2] = z
+        return targets, swing
+
+    def substep_phases(self, phase: Tensor, substeps: int) -> Tensor:
+        """Phase at the start of each of the next K substeps. (N,) -> (N, K)."""
+        k = torch.arange(substeps, dtype=phase.dtype, device=phase.device)
+        return torch.remainder(phase.unsqueeze(-1) + k * self.phase_step, 1.0)
+
+    def joint_targets(
+        self, phase: Tensor, substeps: int, residuals: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """Servo targets for the next K substeps from per-env phase and foot residuals.
+
+        Args:
+            phase: gait phase of each env at the start of the period. Shape: (N,).
+            substeps: K, physics substeps in the control period.
+            residuals: foot offsets in metres, hip frame, held over the period.
+                Shape: (N, 4, 3); None for the pure base gait.
+
+        Returns:
+            ctrl: joint targets in actuator order. Shape: (N, K, 12).
+            reachable: False where a foot target had to be projected. Shape: (N, K, 4).
+        """
+        targets, _ = self.foot_targets(self.substep_phases(phase, substeps))
+        if residuals is not None:
+            targets = targets + residuals.unsqueeze(1)
+        joints, reachable = leg_ik(targets, self.geometry)
+        return joints.flatten(-2), reachable

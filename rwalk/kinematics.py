@@ -1,0 +1,172 @@
+"""Analytic forward and inverse kinematics of the 3-DOF legs, batched in torch.
+
+Each leg is a serial chain: an abduction joint about the torso's x axis at the
+hip point, a hip joint about y offset sideways from it by ``abduction_offset``,
+and a knee joint about y at the end of a thigh of ``thigh_length``. The foot
+centre sits ``shin_length`` below the knee. At zero angles the leg hangs
+straight down. Positive hip and knee angles swing the foot backwards; the knee
+bends backwards (knee angle < 0), as on most small quadrupeds.
+
+Foot positions here are in the *hip frame*: origin at the leg's hip point
+(where the abduction axis meets the hip's plane), axes parallel to the torso.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import torch
+from torch import Tensor
+
+from rwalk.constants import LEG_NAMES, TORSO_BODY
+
+
+@dataclass(frozen=True)
+class LegGeometry:
+    """Lengths, offsets and joint limits of the four legs."""
+
+    hip_positions: tuple[tuple[float, float, float], ...] = (
+        (0.075, 0.04, 0.0),
+        (0.075, -0.04, 0.0),
+        (-0.075, 0.04, 0.0),
+        (-0.075, -0.04, 0.0),
+    )
+    """Hip points in the torso frame, one per leg (FL, FR, RL, RR). Metres."""
+    abduction_offsets: tuple[float, ...] = (0.012, -0.012, 0.012, -0.012)
+    """Signed sideways offset of the hip joint from the abduction axis (left +). Metres."""
+    thigh_length: float = 0.05
+    """Hip joint to knee joint. Metres."""
+    shin_length: float = 0.06
+    """Knee joint to the foot centre. Metres."""
+    foot_radius: float = 0.0075
+    """Radius of the spherical foot. Metres."""
+    joint_lower: tuple[float, float, float] = (-0.7, -1.0, -2.7)
+    """Lower limits of (abduction, hip, knee). Radians."""
+    joint_upper: tuple[float, float, float] = (0.7, 2.2, -0.25)
+    """Upper limits of (abduction, hip, knee). Radians."""
+
+    @classmethod
+    def from_model(cls, model: mujoco.MjModel) -> LegGeometry:
+        """Read the geometry from a compiled model (robot.xml's naming)."""
+
+        def body_pos(name: str) -> np.ndarray:
+            return np.asarray(model.body(name).pos, dtype=float)
+
+        torso = model.body(TORSO_BODY).id
+        hips, offsets = [], []
+        for leg in LEG_NAMES:
+            hip = model.body(f"{leg}_hip_link")
+            if hip.parentid[0] != torso:
+                raise ValueError(f"body {leg}_hip_link must be a child of {TORSO_BODY!r}")
+            hips.append(tuple(float(v) for v in hip.pos))
+            offsets.append(float(body_pos(f"{leg}_thigh")[1]))
+        thigh = -float(body_pos(f"{LEG_NAMES[0]}_shin")[2])
+        shin = -float(model.site(f"{LEG_NAMES[0]}_foot").pos[2])
+        foot_radius = float(model.geom(f"{LEG_NAMES[0]}_foot").size[0])
+        ranges = [model.joint(f"{LEG_NAMES[0]}_{kind}").range for kind in ("abduction", "hip", "knee")]
+        return cls(
+            hip_positions=tuple(hips),
+            abduction_offsets=tuple(offsets),
+            thigh_length=thigh,
+            shin_length=shin,
+            foot_radius=foot_radius,
+            joint_lower=tuple(float(r[0]) for r in ranges),
+            joint_upper=tuple(float(r[1]) for r in ranges),
+        )
+
+    @property
+    def max_knee_reach(self) -> float:
+        """Hip-to-foot distance in the leg plane at the straightest allowed knee."""
+        return _knee_reach(self, self.joint_upper[2])
+
+    @property
+    def min_knee_reach(self) -> float:
+        """Hip-to-foot distance in the leg plane at the most folded allowed knee."""
+        return _knee_reach(self, self.joint_lower[2])
+
+    def hip_tensor(self, dtype: torch.dtype = torch.float64) -> Tensor:
+        """Hip points as a tensor. Shape: (4, 3)."""
+        return torch.tensor(self.hip_positions, dtype=dtype)
+
+
+def _knee_reach(geometry: LegGeometry, knee: float) -> float:
+    l1, l2 = geometry.thigh_length, geometry.shin_length
+    return math.sqrt(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * math.cos(knee))
+
+
+def leg_fk(joints: Tensor, geometry: LegGeometry) -> Tensor:
+    """Foot centres in the hip frames from joint angles.
+
+    Args:
+        joints: (abduction, hip, knee) per leg. Shape: (..., 4, 3).
+        geometry: the legs.
+
+    Returns:
+        Foot positions in each leg's hip frame. Shape: (..., 4, 3).
+    """
+    q1, q2, q3 = joints.unbind(-1)
+    l1, l2 = geometry.thigh_length, geometry.shin_length
+    offset = torch.tensor(geometry.abduction_offsets, dtype=joints.dtype, device=joints.device)
+    # Foot in the leg plane (hip-joint frame before abduction).
+    x = -l1 * torch.sin(q2) - l2 * torch.sin(q2 + q3)
+    z = -l1 * torch.cos(q2) - l2 * torch.cos(q2 + q3)
+    c, s = torch.cos(q1), torch.sin(q1)
+    y_out = offset * c - z * s
+    z_out = offset * s + z * c
+    return torch.stack((x, y_out, z_out), dim=-1)
+
+
+def leg_ik(feet: Tensor, geometry: LegGeometry) -> tuple[Tensor, Tensor]:
+    """Joint angles that put the feet at the given points, knee bent backwards.
+
+    Targets outside the leg's workspace are projected onto it (nearest
+    reachable leg-plane distance, then joint limits) and flagged; the result is
+    never NaN.
+
+    Args:
+        feet: foot-centre targets in each leg's hip frame. Shape: (..., 4, 3).
+        geometry: the legs.
+
+    Returns:
+        joints: (abduction, hip, knee) per leg. Shape: (..., 4, 3).
+        reachable: True where the target was reached exactly. Shape: (..., 4).
+    """
+    dtype, device = feet.dtype, feet.device
+    l1, l2 = geometry.thigh_length, geometry.shin_length
+    offset = torch.tensor(geometry.abduction_offsets, dtype=dtype, device=device)
+    lower = torch.tensor(geometry.joint_lower, dtype=dtype, device=device)
+    upper = torch.tensor(geometry.joint_upper, dtype=dtype, device=device)
+    px, py, pz = feet.unbind(-1)
+
+    # Abduction: the foot lies in the plane swept by the thigh, |offset| from the axis.
+    r_yz = torch.sqrt(py * py + pz * pz)
+    min_r = offset.abs() * (1.0 + 1e-9)
+    ok = r_yz >= min_r
+    r_yz = torch.maximum(r_yz, min_r)
+    z_plane = -torch.sqrt(torch.clamp(r_yz * r_yz - offset * offset, min=0.0))
+    q1 = torch.atan2(pz, py) - torch.atan2(z_plane, offset)
+    q1 = torch.remainder(q1 + math.pi, 2.0 * math.pi) - math.pi
+
+    # Hip and knee: planar two-link problem, distance clamped to what the knee allows.
+    dist = torch.sqrt(px * px + z_plane * z_plane)
+    near, far = geometry.min_knee_reach, geometry.max_knee_reach
+    ok = ok & (dist >= near * (1.0 - 1e-9)) & (dist <= far * (1.0 + 1e-9))
+    dist = torch.clamp(dist, near, far)
+    cos_knee = (dist * dist - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
+    q3 = -torch.acos(torch.clamp(cos_knee, -1.0, 1.0))
+    # Angle of the hip->foot line from straight down, positive backwards.
+    foot_angle = torch.atan2(-px, -z_plane)
+    q2 = foot_angle - torch.atan2(l2 * torch.sin(q3), l1 + l2 * torch.cos(q3))
+
+    joints = torch.stack((q1, q2, q3), dim=-1)
+    clamped = torch.clamp(joints, lower, upper)
+    ok = ok & (clamped == joints).all(dim=-1)
+    return clamped, ok
+
+
+def joints_to_ctrl(joints: Tensor) -> Tensor:
+    """Flatten per-leg joint angles into the actuator order. (..., 4, 3) -> (..., 12)."""
+    return joints.flatten(-2)
