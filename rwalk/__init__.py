@@ -1,0 +1,26 @@
+"""rwalk: a massively-parallel CPU RL environment for residual corrections on a
+Bézier trot of a small MuJoCo quadruped."""
+
+from rwalk.assets import load_model, resolve_model_path, validate_model
+from rwalk.config import EnvConfig
+from rwalk.core import ResidualWalkCore, StepResult
+from rwalk.gait import BezierGaitController, GaitParameters
+from rwalk.kinematics import LegGeometry, leg_fk, leg_ik
+from rwalk.rewards import RewardWeights
+from rwalk.sim import BatchedSim
+
+__all__ = [
+    "BatchedSim",
+    "BezierGaitController",
+    "EnvConfig",
+    "GaitParameters",
+    "LegGeometry",
+    "ResidualWalkCore",
+    "RewardWeights",
+    "StepResult",
+    "leg_fk",
+    "leg_ik",
+    "load_model",
+    "resolve_model_path",
+    "validate_model",
+]

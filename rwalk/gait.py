@@ -169,9 +169,9 @@ class BezierGaitController:
         if not bool(ok.all()):
             raise ValueError(
                 f"GaitParameters(body_height={p.body_height!r}, step_length={p.step_length!r}, "
-                f"duty_factor={p.duty_factor!r}, foot_spread={p.foot_spread!r}): the stance line is "
-                f"outside the legs' workspace (leg reach {self.geometry.min_knee_reach:.3f}.."
-                f"{self.geometry.max_knee_reach:.3f} m)"
+                f"duty_factor={p.duty_factor!r}, foot_spread={p.foot_spread!r}): the stance "
+                f"line is outside the legs' workspace (leg reach "
+                f"{self.geometry.min_knee_reach:.3f}..{self.geometry.max_knee_reach:.3f} m)"
             )
 
     @property

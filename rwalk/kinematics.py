@@ -66,7 +66,9 @@ class LegGeometry:
         thigh = -float(body_pos(f"{LEG_NAMES[0]}_shin")[2])
         shin = -float(model.site(f"{LEG_NAMES[0]}_foot").pos[2])
         foot_radius = float(model.geom(f"{LEG_NAMES[0]}_foot").size[0])
-        ranges = [model.joint(f"{LEG_NAMES[0]}_{kind}").range for kind in ("abduction", "hip", "knee")]
+        ranges = [
+            model.joint(f"{LEG_NAMES[0]}_{kind}").range for kind in ("abduction", "hip", "knee")
+        ]
         return cls(
             hip_positions=tuple(hips),
             abduction_offsets=tuple(offsets),
@@ -162,11 +164,6 @@ def leg_ik(feet: Tensor, geometry: LegGeometry) -> tuple[Tensor, Tensor]:
     q2 = foot_angle - torch.atan2(l2 * torch.sin(q3), l1 + l2 * torch.cos(q3))
 
     joints = torch.stack((q1, q2, q3), dim=-1)
-    clamped = torch.clamp(joints, lower, upper)
-    ok = ok & (clamped == joints).all(dim=-1)
-    return clamped, ok
-
-
-def joints_to_ctrl(joints: Tensor) -> Tensor:
-    """Flatten per-leg joint angles into the actuator order. (..., 4, 3) -> (..., 12)."""
-    return joints.flatten(-2)
+    # Rounding can put a target exactly on a limit a hair outside it: tolerate 1e-9 rad.
+    ok = ok & ((joints >= lower - 1e-9) & (joints <= upper + 1e-9)).all(dim=-1)
+    return torch.clamp(joints, lower, upper), ok

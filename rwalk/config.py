@@ -1,0 +1,69 @@
+"""Configuration of the residual-walk task."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+
+from rwalk.gait import GaitParameters
+from rwalk.rewards import RewardWeights
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Everything that defines the task. Variants via ``dataclasses.replace``."""
+
+    model_path: str = "model/world_train.xml"
+    """MJCF world: a path, or a name of a packaged model such as ``model/world_flat.xml``."""
+    gait: GaitParameters = field(default_factory=GaitParameters)
+    """The fixed base gait."""
+    residual_scale: float = 0.02
+    """Metres of foot offset per unit of action."""
+    max_episode_steps: int = 1000
+    """Env steps before truncation."""
+    settle_steps: int = 500
+    """Env steps of zero-residual gait run at each reset before the episode starts."""
+    decimation: int = 10
+    """Physics substeps per env step (10 x 2 ms = 50 Hz control)."""
+    terrain_scale: float = 1.0
+    """Roughness of a heightfield world: 0 flat .. 1 full."""
+    randomize: bool = False
+    """Perturb each start's position and orientation (the spec's reset option)."""
+    start_position: tuple[float, float] = (-3.5, 0.0)
+    """Nominal (x, y) of the torso at a start. Metres."""
+    position_noise: tuple[float, float] = (0.02, 0.02)
+    """Half-widths of the uniform (x, y) perturbation when randomizing. Metres."""
+    yaw_noise: float = 0.1
+    """Half-width of the uniform yaw perturbation when randomizing. Radians."""
+    tilt_noise: float = 0.02
+    """Half-width of the uniform roll and pitch perturbations when randomizing. Radians."""
+    num_threads: int = 0
+    """Physics worker threads including the caller's; 0 uses all cores."""
+    reward_weights: RewardWeights = field(default_factory=RewardWeights)
+    """Weights of the reward terms."""
+
+    def __post_init__(self) -> None:
+        def bad(name: str, why: str) -> ValueError:
+            return ValueError(f"EnvConfig.{name} {why}, got {getattr(self, name)!r}")
+
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise bad(f.name, "must be finite")
+        if not self.residual_scale > 0:
+            raise bad("residual_scale", "must be > 0")
+        for name, low in (("max_episode_steps", 1), ("settle_steps", 0), ("decimation", 1)):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < low:
+                raise bad(name, f"must be an integer >= {low}")
+        if not 0.0 <= self.terrain_scale <= 1.0:
+            raise bad("terrain_scale", "must be in [0, 1]")
+        if min(self.position_noise) < 0 or self.yaw_noise < 0 or self.tilt_noise < 0:
+            raise ValueError("EnvConfig noise half-widths must be >= 0")
+        if not isinstance(self.num_threads, int) or self.num_threads < 0:
+            raise bad("num_threads", "must be an integer >= 0")
+
+    @property
+    def expected_velocity(self) -> float:
+        """step_length / cycle_time. m/s."""
+        return self.gait.expected_velocity

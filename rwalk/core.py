@@ -1,0 +1,350 @@
+"""The residual-walk task for N envs: a fixed step pipeline and batched resets.
+
+Step: action -> foot residuals -> base-gait targets + residuals for K substeps
+-> IK -> one batched MuJoCo rollout -> counters -> observation -> reward terms
+-> terminations. The core never resets on its own: the TorchRL, Gymnasium and
+rsl-rl views each apply their own reset convention on top of it.
+
+Reset: each start is drawn from its own counter-based key, placed above the
+ground, then settled with zero residuals for ``settle_steps`` env steps while
+the gait phase advances, all resetting envs in one batched rollout. A start
+that falls or diverges while settling is redrawn.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from rwalk import rng
+from rwalk.assets import load_model
+from rwalk.config import EnvConfig
+from rwalk.constants import (
+    ACTION_DIM,
+    JOINT_NAMES,
+    OBS_CONTACT,
+    OBS_DIM,
+    OBS_LINVEL,
+    OBS_POS,
+    OBS_QUAT,
+)
+from rwalk.gait import BezierGaitController
+from rwalk.kinematics import LegGeometry
+from rwalk.rewards import TERM_NAMES, compute_terms, fallen, quat_to_rpy
+from rwalk.sim import BatchedSim
+from rwalk.terrain import Terrain
+
+#: Attempts at a start that does not fall or diverge while settling.
+SETTLE_ATTEMPTS = 5
+#: Most servo-target values held at once while settling (bounds memory).
+SETTLE_CTRL_BUDGET = 2_000_000
+#: Clearance of the lowest foot above the highest ground under the robot at a start.
+START_CLEARANCE = 0.004
+#: Half-width of the square searched for the highest ground under a start.
+FOOTPRINT_RADIUS = 0.13
+
+
+class StepResult(NamedTuple):
+    """What one core step returns; every tensor has the batch as first dimension."""
+
+    obs: Tensor
+    """Spec observation. Shape: (N, 65) float64."""
+    reward: Tensor
+    """Sum of the weighted terms. Shape: (N,)."""
+    terms: dict[str, Tensor]
+    """Weighted reward terms by name. Each shape: (N,)."""
+    terminated: Tensor
+    """Fell (|roll| or |pitch| > π/3) or diverged. Shape: (N,) bool."""
+    truncated: Tensor
+    """Reached max_episode_steps without terminating. Shape: (N,) bool."""
+    diverged: Tensor
+    """The simulation blew up this step (MuJoCo reset it). Shape: (N,) bool."""
+
+
+class ResidualWalkCore:
+    """N residual-walk envs over one batched simulation.
+
+    Args:
+        config: the task.
+        num_envs: N.
+        seed: base seed; env i's k-th start uses key seed + (start counter).
+            None draws a seed from the OS.
+    """
+
+    def __init__(self, config: EnvConfig, num_envs: int, seed: int | None = None) -> None:
+        if not isinstance(num_envs, int) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        self.config = config
+        self.num_envs = num_envs
+        self.model = load_model(config.model_path)
+        self.terrain = Terrain(self.model)
+        self.terrain.set_scale(self.model, config.terrain_scale)
+        self.geometry = LegGeometry.from_model(self.model)
+        self.dt = float(self.model.opt.timestep)
+        self.control_dt = self.dt * config.decimation
+        self.controller = BezierGaitController(config.gait, self.geometry, dt=self.dt)
+        self.sim = BatchedSim(self.model, num_envs, config.num_threads)
+        joint_adr = [int(self.model.joint(name).qposadr[0]) for name in JOINT_NAMES]
+        self._joint_qpos = slice(joint_adr[0], joint_adr[0] + len(joint_adr))
+        if joint_adr != list(range(joint_adr[0], joint_adr[0] + len(joint_adr))):
+            raise ValueError(f"joints {JOINT_NAMES} must be consecutive in qpos")
+
+        n = num_envs
+        self.phase = torch.zeros(n, dtype=torch.float64)
+        """Gait phase in [0, 1) at the start of the next step. Shape: (N,)."""
+        self.episode_step = torch.zeros(n, dtype=torch.long)
+        """Env steps taken in the current episode. Shape: (N,)."""
+        self.y0 = torch.zeros(n, dtype=torch.float64)
+        """Torso y at the episode's start. Shape: (N,)."""
+        self.obs = torch.zeros(n, OBS_DIM, dtype=torch.float64)
+        """Current spec observation. Shape: (N, 65)."""
+        self.episode_sums = {name: torch.zeros(n, dtype=torch.float64) for name in TERM_NAMES}
+        """Per-term sums over the current episode. Each shape: (N,)."""
+        self.episode_distance = torch.zeros(n, dtype=torch.float64)
+        """Sum of forward velocity x control dt over the current episode. Shape: (N,)."""
+        with warnings.catch_warnings():  # sensordata is a read-only output; we only read it
+            warnings.simplefilter("ignore", UserWarning)
+            self._sensors = torch.from_numpy(self.sim.sensordata)
+        self._settle_ctrl = self._base_gait_ctrl(config.settle_steps * config.decimation)
+        self._stand_joints = self._base_gait_ctrl(1)[0]
+        self._settled_phase = math.fmod(
+            config.settle_steps * config.decimation * self.controller.phase_step, 1.0
+        )
+        self._started = False
+        self.seed(seed)
+
+    # ------------------------------------------------------------------ seeding
+    def seed(self, seed: int | None) -> int:
+        """Restart the start counter from ``seed``; returns the seed used."""
+        if seed is None:
+            seed = int.from_bytes(os.urandom(4), "little")
+        if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+            raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
+        self._seed = int(seed)
+        self._next_start = 0
+        return self._seed
+
+    # ------------------------------------------------------------------ reset
+    def reset(
+        self, env_ids: np.ndarray | Tensor | None = None, randomize: bool | None = None
+    ) -> None:
+        """Start new episodes in the given envs (all if None), settled and ready.
+
+        Args:
+            env_ids: sorted unique env indices. Shape: (M,).
+            randomize: perturb the starts; None uses ``config.randomize``.
+        """
+        ids = self._ids(env_ids)
+        if ids.size == 0:
+            return
+        randomize = self.config.randomize if randomize is None else bool(randomize)
+        todo = ids
+        for _ in range(SETTLE_ATTEMPTS):
+            keys = self._seed + self._next_start + np.arange(todo.size, dtype=np.int64)
+            self._next_start += todo.size
+            self._place_starts(todo, keys, randomize)
+            failed = self._settle(todo)
+            todo = todo[failed]
+            if todo.size == 0:
+                break
+        rows = torch.from_numpy(ids.astype(np.int64))
+        self._read_obs(rows)
+        self.phase[rows] = self._settled_phase
+        self.episode_step[rows] = 0
+        self.y0[rows] = self.obs[rows, OBS_POS.start + 1]
+        for total in (*self.episode_sums.values(), self.episode_distance):
+            total[rows] = 0.0
+        if ids.size == self.num_envs:
+            self._started = True
+
+    def _ids(self, env_ids: np.ndarray | Tensor | None) -> np.ndarray:
+        if env_ids is None:
+            return np.arange(self.num_envs, dtype=np.int32)
+        if isinstance(env_ids, Tensor):
+            env_ids = env_ids.detach().cpu().numpy()
+        ids = np.asarray(env_ids)
+        if ids.dtype == bool:
+            ids = np.flatnonzero(ids)
+        ids = ids.astype(np.int32, copy=False).reshape(-1)
+        if ids.size and (ids.min() < 0 or ids.max() >= self.num_envs):
+            raise ValueError(f"env ids must be in [0, {self.num_envs}), got {ids.tolist()}")
+        if ids.size > 1 and not (np.diff(ids) > 0).all():
+            raise ValueError(f"env ids must be sorted and unique, got {ids.tolist()}")
+        return np.ascontiguousarray(ids)
+
+    def _place_starts(self, ids: np.ndarray, keys: np.ndarray, randomize: bool) -> None:
+        """Write fresh start states (standing in the phase-0 gait pose) into rows ``ids``."""
+        cfg = self.config
+        m = ids.size
+        if randomize:
+            u = 2.0 * rng.uniform(keys, 5) - 1.0
+            dx, dy = u[:, 0] * cfg.position_noise[0], u[:, 1] * cfg.position_noise[1]
+            roll, pitch, yaw = (
+                u[:, 2] * cfg.tilt_noise,
+                u[:, 3] * cfg.tilt_noise,
+                u[:, 4] * cfg.yaw_noise,
+            )
+        else:
+            dx = dy = roll = pitch = yaw = np.zeros(m)
+        x = cfg.start_position[0] + dx
+        y = cfg.start_position[1] + dy
+        ground = self.terrain.max_height(x, y, FOOTPRINT_RADIUS)
+        foot_bottom = self.controller.stance_z - self.geometry.foot_radius
+        z = ground + START_CLEARANCE - foot_bottom
+        self.sim.reset(ids)
+        qpos = self.sim.qpos
+        qpos[ids, 0] = x
+        qpos[ids, 1] = y
+        qpos[ids, 2] = z
+        qpos[ids, 3:7] = _rpy_to_quat(roll, pitch, yaw)
+        qpos[ids, self._joint_qpos] = self._stand_joints
+
+    def _settle(self, ids: np.ndarray) -> np.ndarray:
+        """Run the zero-residual gait on rows ``ids`` for settle_steps env steps.
+
+        Returns:
+            Rows that fell or diverged. Shape: (M,) bool.
+        """
+        failed = np.zeros(ids.size, dtype=bool)
+        total = self._settle_ctrl.shape[0]
+        if total == 0:
+            failed |= self.sim.forward(ids)
+        else:
+            chunk = max(1, SETTLE_CTRL_BUDGET // (ids.size * self._settle_ctrl.shape[1]))
+            for start in range(0, total, chunk):
+                piece = self._settle_ctrl[start : start + chunk]
+                ctrl = np.broadcast_to(piece, (ids.size, *piece.shape))
+                failed |= self.sim.rollout(np.ascontiguousarray(ctrl), ids)
+        quat = torch.from_numpy(np.asarray(self.sim.sensordata[ids, OBS_QUAT]))
+        failed |= fallen(quat_to_rpy(quat)).numpy()
+        return failed
+
+    def _base_gait_ctrl(self, substeps: int) -> np.ndarray:
+        """Zero-residual servo targets from phase 0. Shape: (substeps, 12)."""
+        start = torch.zeros(1, dtype=torch.float64)
+        ctrl, _ = self.controller.joint_targets(start, substeps)
+        return np.ascontiguousarray(ctrl[0].numpy())
+
+    # ------------------------------------------------------------------ step
+    def step(self, action: Tensor) -> StepResult:
+        """Advance every env by one control period (``decimation`` substeps).
+
+        Args:
+            action: residuals in [-1, 1] (values outside are clipped), per leg
+                (x, y, z) in the order FL, FR, RL, RR. Shape: (N, 12).
+
+        Raises:
+            ValueError: wrong shape or a non-finite value (naming it).
+            RuntimeError: before the first full reset.
+        """
+        if not self._started:
+            raise RuntimeError("call reset() on all envs before step()")
+        action = self.check_action(action)
+        cfg = self.config
+        residuals = action.view(self.num_envs, 4, 3) * cfg.residual_scale
+        ctrl, _ = self.controller.joint_targets(self.phase, cfg.decimation, residuals)
+        diverged = torch.from_numpy(self.sim.rollout(ctrl.numpy()))
+        # Sensors are those of the last substep's start.
+        sensed_phase = self.phase + (cfg.decimation - 1) * self.controller.phase_step
+        self.phase = torch.remainder(self.phase + cfg.decimation * self.controller.phase_step, 1.0)
+        self.episode_step += 1
+
+        obs = self._read_obs()
+        rpy = quat_to_rpy(obs[:, OBS_QUAT])
+        forward_velocity = obs[:, OBS_LINVEL.start]
+        terms = compute_terms(
+            forward_velocity=forward_velocity,
+            expected_velocity=cfg.expected_velocity,
+            swing=self.controller.is_swing(sensed_phase),
+            contact=obs[:, OBS_CONTACT] > 0.5,
+            rpy=rpy,
+            y=obs[:, OBS_POS.start + 1],
+            y0=self.y0,
+            weights=cfg.reward_weights,
+        )
+        if bool(diverged.any()):
+            terms = {name: term.masked_fill(diverged, 0.0) for name, term in terms.items()}
+        reward = torch.stack(list(terms.values())).sum(dim=0)
+        terminated = fallen(rpy) | diverged
+        truncated = (self.episode_step >= cfg.max_episode_steps) & ~terminated
+        for name, term in terms.items():
+            self.episode_sums[name] += term
+        self.episode_distance += forward_velocity.masked_fill(diverged, 0.0) * self.control_dt
+        return StepResult(obs, reward, terms, terminated, truncated, diverged)
+
+    def check_action(self, action: Tensor | np.ndarray) -> Tensor:
+        """Validate and clip an action batch. Returns float64 (N, 12)."""
+        action = torch.as_tensor(action)
+        expected = (self.num_envs, ACTION_DIM)
+        if tuple(action.shape) != expected:
+            raise ValueError(f"action must have shape {expected}, got {tuple(action.shape)}")
+        if not (action.dtype.is_floating_point or action.dtype in (torch.int32, torch.int64)):
+            raise ValueError(f"action must be numeric, got dtype {action.dtype}")
+        action = action.to(torch.float64)
+        finite = torch.isfinite(action)
+        if not bool(finite.all()):
+            env, index = (int(v) for v in (~finite).nonzero()[0])
+            raise ValueError(
+                f"action has a non-finite value {action[env, index].item()} "
+                f"(env {env}, index {index})"
+            )
+        return action.clamp(-1.0, 1.0)
+
+    def _read_obs(self, rows: Tensor | None = None) -> Tensor:
+        """Copy sensordata into the observation (contacts as 0/1) and return it."""
+        if rows is None:
+            self.obs.copy_(self._sensors)
+        else:
+            self.obs[rows] = self._sensors[rows]
+        self.obs[:, OBS_CONTACT] = (self.obs[:, OBS_CONTACT] > 0).to(torch.float64)
+        return self.obs
+
+    # ------------------------------------------------------------------ extras
+    def set_terrain_scale(self, scale: float) -> None:
+        """Scale the heightfield's roughness for all envs (0 flat .. 1 full).
+
+        Takes effect immediately for contacts; new starts are placed on the new ground.
+        """
+        self.terrain.set_scale(self.model, scale)
+        self.sim.set_model(self.model)
+
+    def phase_features(self) -> Tensor:
+        """(sin 2πφ, cos 2πφ) of the gait phase. Shape: (N, 2)."""
+        angle = 2.0 * math.pi * self.phase
+        return torch.stack((torch.sin(angle), torch.cos(angle)), dim=-1)
+
+    def episode_log(self, env_ids: Tensor) -> dict[str, Tensor]:
+        """Per-env statistics of the episodes ending in ``env_ids`` (call before reset).
+
+        Returns per-term episode sums (``"sum/<term>"``), ``"length"`` (steps)
+        and ``"forward_velocity"`` (mean over the episode, m/s). Each shape: (M,).
+        """
+        length = self.episode_step[env_ids].to(torch.float64)
+        log = {f"sum/{name}": total[env_ids] for name, total in self.episode_sums.items()}
+        log["length"] = length
+        log["forward_velocity"] = self.episode_distance[env_ids] / (
+            length.clamp(min=1.0) * self.control_dt
+        )
+        return log
+
+
+def _rpy_to_quat(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """(w, x, y, z) quaternions from ZYX Euler angles. Shape: (M,)x3 -> (M, 4)."""
+    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
+    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
+    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
+    return np.stack(
+        (
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ),
+        axis=-1,
+    )

@@ -1,0 +1,110 @@
+"""Reward terms and termination as pure torch functions of batched tensors.
+
+Each term returns its unweighted value; ``RewardWeights`` holds the spec's
+weights, and the reward is exactly the sum of the weighted terms.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+#: Names of the reward terms, in the order they are reported.
+TERM_NAMES: tuple[str, ...] = ("velocity_tracking", "contact_pattern", "stability", "lateral")
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    """Weights of the spec's reward terms."""
+
+    velocity_tracking: float = 300.0
+    """Times (1 - |v_x - v*|)."""
+    contact_pattern: float = 1.0
+    """Times the per-leg contact score summed over legs."""
+    stability: float = -3.0
+    """Times roll² + pitch² + yaw² (radians)."""
+    lateral: float = -1.0
+    """Times |y - y0| (metres)."""
+    contact_match: float = 0.05
+    """Per-leg score when a swing foot is in the air or a stance foot is down."""
+    contact_mismatch: float = -0.2
+    """Per-leg score otherwise."""
+
+
+def quat_to_rpy(quat: Tensor) -> Tensor:
+    """Roll, pitch, yaw (ZYX Euler angles) from unit quaternions.
+
+    Args:
+        quat: (w, x, y, z). Shape: (..., 4).
+
+    Returns:
+        (roll, pitch, yaw) in radians. Shape: (..., 3).
+    """
+    w, x, y, z = quat.unbind(-1)
+    roll = torch.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = torch.asin(torch.clamp(2.0 * (w * y - z * x), -1.0, 1.0))
+    yaw = torch.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return torch.stack((roll, pitch, yaw), dim=-1)
+
+
+def velocity_tracking(forward_velocity: Tensor, expected_velocity: float) -> Tensor:
+    """1 - |v_x - v*|. Shape: (N,) -> (N,)."""
+    return 1.0 - (forward_velocity - expected_velocity).abs()
+
+
+def contact_pattern(swing: Tensor, contact: Tensor, match: float, mismatch: float) -> Tensor:
+    """Sum over legs of ``match`` where the foot does what its phase asks, else ``mismatch``.
+
+    A swing foot should be in the air, a stance foot on the ground.
+
+    Args:
+        swing: swing flags. Shape: (N, 4) bool.
+        contact: foot-ground contact flags. Shape: (N, 4) bool.
+    """
+    ok = swing != contact
+    scores = torch.tensor([mismatch, match], dtype=torch.float64, device=ok.device)
+    return scores[ok.long()].sum(dim=-1)
+
+
+def stability(rpy: Tensor) -> Tensor:
+    """roll² + pitch² + yaw². Shape: (N, 3) -> (N,)."""
+    return (rpy * rpy).sum(dim=-1)
+
+
+def lateral(y: Tensor, y0: Tensor) -> Tensor:
+    """|y - y0|: sideways drift from the episode's start. Shape: (N,) -> (N,)."""
+    return (y - y0).abs()
+
+
+def compute_terms(
+    *,
+    forward_velocity: Tensor,
+    expected_velocity: float,
+    swing: Tensor,
+    contact: Tensor,
+    rpy: Tensor,
+    y: Tensor,
+    y0: Tensor,
+    weights: RewardWeights,
+) -> dict[str, Tensor]:
+    """All weighted terms by name (each shape (N,)); the reward is their sum."""
+    return {
+        "velocity_tracking": weights.velocity_tracking
+        * velocity_tracking(forward_velocity, expected_velocity),
+        "contact_pattern": weights.contact_pattern
+        * contact_pattern(swing, contact, weights.contact_match, weights.contact_mismatch),
+        "stability": weights.stability * stability(rpy),
+        "lateral": weights.lateral * lateral(y, y0),
+    }
+
+
+#: Roll or pitch beyond this ends the episode (the robot fell). Radians.
+TILT_LIMIT = math.pi / 3
+
+
+def fallen(rpy: Tensor) -> Tensor:
+    """|roll| > π/3 or |pitch| > π/3. Shape: (N, 3) -> (N,) bool."""
+    return (rpy[..., 0].abs() > TILT_LIMIT) | (rpy[..., 1].abs() > TILT_LIMIT)
