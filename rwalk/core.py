@@ -270,7 +270,8 @@ class ResidualWalkCore:
         )
         if bool(diverged.any()):
             terms = {name: term.masked_fill(diverged, 0.0) for name, term in terms.items()}
-        reward = torch.stack(list(terms.values())).sum(dim=0)
+        # Left to right, so that the reward equals sum(terms.values()) to the last bit.
+        reward = sum(terms.values(), torch.zeros_like(forward_velocity))
         terminated = fallen(rpy) | diverged
         truncated = (self.episode_step >= cfg.max_episode_steps) & ~terminated
         for name, term in terms.items():

@@ -1,0 +1,162 @@
+"""``ResidualWalkEnv``: the spec's single environment, a Gymnasium view of the core with N=1."""
+
+from __future__ import annotations
+
+import os
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from rwalk.config import EnvConfig
+from rwalk.constants import ACTION_DIM, OBS_DIM, OBS_POS
+from rwalk.core import ResidualWalkCore
+from rwalk.gait import GaitParameters
+
+_SPEC_DEFAULTS = {
+    "model_path": "model/world_train.xml",
+    "gait": GaitParameters(),
+    "residual_scale": 0.02,
+    "max_episode_steps": 1000,
+    "settle_steps": 500,
+}
+
+
+class ResidualWalkEnv(gym.Env):
+    """Learn per-leg foot residuals on top of a fixed diagonal Bézier trot.
+
+    ## Action Space
+    ``Box(-1, 1, (12,), float32)``: (x, y, z) foot offsets for FL, FR, RL, RR in the
+    hip frame, times ``residual_scale`` metres. Values outside [-1, 1] are clipped.
+
+    ## Observation Space
+    ``Box(-inf, inf, (65,), float32)``: torso position (3), quaternion wxyz (4),
+    linear velocity (3) and angular velocity (3) in the world frame; 12 joint
+    angles; 12 joint velocities; 4 x 3 foot positions and 4 x 3 foot velocities
+    in the torso frame; 4 foot-ground contact flags (FL, FR, RL, RR).
+
+    ## Rewards
+    - velocity_tracking: ``300 (1 - |v_x - v*|)``, ``v* = step_length / cycle_time``
+    - contact_pattern: per leg ``+0.05`` if a swing foot is up or a stance foot is
+      down, else ``-0.2``
+    - stability: ``-3 (roll² + pitch² + yaw²)``
+    - lateral: ``-|y - y0|``, y0 the torso's y when the episode started
+
+    The reward is exactly the sum; ``info["reward_components"]`` holds each term.
+
+    ## Starting State
+    Standing in the gait's phase-0 pose at x = -3.5 m, y = 0 (with
+    ``options={"randomize": True}``: ±2 cm in x and y, ±0.1 rad yaw, ±0.02 rad
+    roll and pitch), then ``settle_steps`` steps of the zero-residual gait.
+
+    ## Episode End
+    Terminated when |roll| or |pitch| > π/3 (or the simulation diverged);
+    truncated after ``max_episode_steps`` steps.
+
+    ## Arguments
+    As in the spec. Alternatively ``config`` (an ``EnvConfig``) sets everything,
+    e.g. the flat world or start randomisation; then leave the spec's arguments
+    at their defaults.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 50}
+
+    def __init__(
+        self,
+        model_path: str | os.PathLike[str] = "model/world_train.xml",
+        gait_params: GaitParameters | None = None,
+        residual_scale: float = 0.02,
+        max_episode_steps: int = 1000,
+        settle_steps: int = 500,
+        seed: int | None = None,
+        *,
+        config: EnvConfig | None = None,
+        render_mode: str | None = None,
+    ) -> None:
+        spec_args = {
+            "model_path": str(model_path),
+            "gait": gait_params if gait_params is not None else GaitParameters(),
+            "residual_scale": residual_scale,
+            "max_episode_steps": max_episode_steps,
+            "settle_steps": settle_steps,
+        }
+        if config is None:
+            config = EnvConfig(**spec_args)
+        elif spec_args != _SPEC_DEFAULTS:
+            raise ValueError("pass either config or the spec's constructor arguments, not both")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self.core = ResidualWalkCore(config, 1, seed=seed)
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (ACTION_DIM,), np.float32)
+        self._renderer = None
+
+    @property
+    def config(self) -> EnvConfig:
+        return self.core.config
+
+    @property
+    def expected_velocity(self) -> float:
+        """step_length / cycle_time of the fixed gait. m/s."""
+        return self.core.config.expected_velocity
+
+    @property
+    def terrain_scale(self) -> float:
+        return self.core.terrain.scale
+
+    def set_terrain_scale(self, scale: float) -> None:
+        """Scale the terrain's roughness (0 flat .. 1 full); takes effect at once."""
+        self.core.set_terrain_scale(scale)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        options = dict(options or {})
+        randomize = options.pop("randomize", None)
+        if options:
+            raise ValueError(f"unknown reset options {sorted(options)} (known: 'randomize')")
+        if seed is not None:
+            self.core.seed(seed)
+        self.core.reset(randomize=randomize)
+        return self._observation(), {}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        array = np.asarray(action)
+        if array.shape != (ACTION_DIM,):
+            raise ValueError(f"action must have shape ({ACTION_DIM},), got {array.shape}")
+        result = self.core.step(torch.as_tensor(array).reshape(1, ACTION_DIM))
+        info = {
+            "reward_components": {name: float(term[0]) for name, term in result.terms.items()},
+            "body_height": float(result.obs[0, OBS_POS.start + 2]),
+            "phase": float(self.core.phase[0]),
+            "diverged": bool(result.diverged[0]),
+        }
+        return (
+            self._observation(),
+            float(result.reward[0]),
+            bool(result.terminated[0]),
+            bool(result.truncated[0]),
+            info,
+        )
+
+    def _observation(self) -> np.ndarray:
+        return self.core.obs[0].numpy().astype(np.float32)
+
+    def render(self) -> np.ndarray | None:
+        """An RGB frame of the robot (needs an OpenGL backend, e.g. MUJOCO_GL=osmesa)."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without render_mode='rgb_array'")
+            return None
+        from rwalk.render import FrameRenderer
+
+        if self._renderer is None:
+            self._renderer = FrameRenderer(self.core.model)
+        return self._renderer.frame(self.core.sim, 0)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

@@ -1,0 +1,136 @@
+"""``ResidualWalkVecEnv``: the batched task as a TorchRL ``EnvBase``."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from rwalk.config import EnvConfig
+from rwalk.constants import ACTION_DIM, OBS_DIM, OBS_POS
+from rwalk.core import ResidualWalkCore
+from rwalk.rewards import TERM_NAMES
+
+
+class ResidualWalkVecEnv(EnvBase):
+    """N residual-walk envs stepped together (``batch_size=(num_envs,)``).
+
+    Keys (all float32 unless noted; N = num_envs):
+
+    - ``observation`` (N, 65): the spec's observation (see docs/environment.md).
+    - ``phase`` (N, 2): sin and cos of 2π x the gait phase (not in the spec).
+    - ``lateral_offset`` (N, 1): y - y0, the drift the lateral penalty sees (not in the spec).
+    - ``action`` (N, 12) in [-1, 1]: foot residuals FL, FR, RL, RR x (x, y, z); clipped.
+    - ``reward`` (N, 1), ``done`` / ``terminated`` / ``truncated`` (N, 1) bool.
+    - ``("reward_terms", name)`` (N, 1): each weighted reward term; they sum to ``reward``.
+    - ``diverged`` (N, 1) bool: the simulation blew up this step (also terminated).
+
+    Partial resets follow the ``"_reset"`` mask; reset envs are settled in one
+    batched rollout. Seeding goes through ``set_seed``: env i of a batch seeded
+    s starts exactly like ``ResidualWalkEnv(seed=s + i)``.
+
+    Args:
+        num_envs: N.
+        config: the task; defaults to the spec's.
+        seed: seed for the starts; None draws one from the OS.
+        device: only "cpu" (the simulation runs on the CPU).
+    """
+
+    def __init__(
+        self,
+        num_envs: int,
+        config: EnvConfig | None = None,
+        seed: int | None = None,
+        device: str | torch.device = "cpu",
+    ) -> None:
+        if torch.device(device).type != "cpu":
+            raise ValueError(f"ResidualWalkVecEnv runs on the CPU only, got device {device!r}")
+        self.core = ResidualWalkCore(config or EnvConfig(), num_envs, seed=seed)
+        super().__init__(device="cpu", batch_size=torch.Size([num_envs]))
+        self.rng = torch.Generator()
+        if seed is not None:
+            self.rng.manual_seed(seed)
+        n = num_envs
+        self.observation_spec = Composite(
+            observation=Unbounded(shape=(n, OBS_DIM), dtype=torch.float32),
+            phase=Bounded(-1.0, 1.0, shape=(n, 2), dtype=torch.float32),
+            lateral_offset=Unbounded(shape=(n, 1), dtype=torch.float32),
+            reward_terms=Composite(
+                {name: Unbounded(shape=(n, 1), dtype=torch.float32) for name in TERM_NAMES},
+                shape=(n,),
+            ),
+            diverged=Unbounded(shape=(n, 1), dtype=torch.bool),
+            shape=(n,),
+        )
+        self.action_spec = Bounded(-1.0, 1.0, shape=(n, ACTION_DIM), dtype=torch.float32)
+        self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32)
+        flag = Categorical(2, shape=(n, 1), dtype=torch.bool)
+        self.done_spec = Composite(
+            done=flag.clone(), terminated=flag.clone(), truncated=flag.clone(), shape=(n,)
+        )
+
+    @property
+    def config(self) -> EnvConfig:
+        return self.core.config
+
+    @property
+    def num_envs(self) -> int:
+        return self.core.num_envs
+
+    @property
+    def expected_velocity(self) -> float:
+        """step_length / cycle_time of the fixed gait. m/s."""
+        return self.core.config.expected_velocity
+
+    def set_terrain_scale(self, scale: float) -> None:
+        """Scale the terrain's roughness for every env (0 flat .. 1 full)."""
+        self.core.set_terrain_scale(scale)
+
+    # ------------------------------------------------------------------ EnvBase
+    def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
+        mask = None if tensordict is None else tensordict.get("_reset", None)
+        if mask is None or not self.core._started:
+            self.core.reset()
+        else:
+            self.core.reset(mask.reshape(-1))
+        n = self.num_envs
+        zeros = torch.zeros(n, dtype=torch.float64)
+        no = torch.zeros(n, dtype=torch.bool)
+        out = self._outputs(dict.fromkeys(TERM_NAMES, zeros), zeros, no, no, no)
+        return out.exclude("reward")
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        r = self.core.step(tensordict.get("action"))
+        return self._outputs(r.terms, r.reward, r.diverged, r.terminated, r.truncated)
+
+    def _outputs(
+        self,
+        terms: dict[str, torch.Tensor],
+        reward: torch.Tensor,
+        diverged: torch.Tensor,
+        terminated: torch.Tensor,
+        truncated: torch.Tensor,
+    ) -> TensorDict:
+        core = self.core
+        lateral = core.obs[:, OBS_POS.start + 1] - core.y0
+        return TensorDict(
+            {
+                "observation": core.obs.to(torch.float32),
+                "phase": core.phase_features().to(torch.float32),
+                "lateral_offset": lateral.to(torch.float32).unsqueeze(-1),
+                "reward_terms": {
+                    name: term.to(torch.float32).unsqueeze(-1) for name, term in terms.items()
+                },
+                "reward": reward.to(torch.float32).unsqueeze(-1),
+                "diverged": diverged.unsqueeze(-1),
+                "terminated": terminated.unsqueeze(-1),
+                "truncated": truncated.unsqueeze(-1),
+                "done": (terminated | truncated).unsqueeze(-1),
+            },
+            batch_size=self.batch_size,
+        )
+
+    def _set_seed(self, seed: int | None) -> None:
+        used = self.core.seed(seed)
+        self.rng.manual_seed(used)

@@ -1,0 +1,113 @@
+"""``RslRlVecEnv``: rsl-rl-lib 5.x's ``VecEnv`` over a ``ResidualWalkVecEnv``."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+from rsl_rl.env import VecEnv
+from tensordict import TensorDict
+
+from rwalk.constants import OBS_POS
+from rwalk.envs.vec_env import ResidualWalkVecEnv
+
+#: Observation pieces a group can be made of.
+OBS_PIECES = ("observation", "phase", "lateral_offset")
+
+
+class RslRlVecEnv(VecEnv):
+    """Adapts the batched env to rsl-rl: auto-reset inside ``step``, observation
+    groups as a TensorDict, ``extras["time_outs"]`` and ``extras["log"]``.
+
+    Observation groups (each a (N, D) float32 tensor, pieces concatenated):
+    ``policy`` and ``critic``, from ``observation`` (65, the spec's), ``phase``
+    (2, sin/cos of the gait phase) and ``lateral_offset`` (1, y - y0).
+
+    ``extras["log"]`` (means over the episodes that ended this step):
+    ``Episode_Reward/<term>`` (per-step mean of each reward term),
+    ``Episode/length``, ``Episode/fall_rate``, ``Episode/forward_velocity``,
+    ``Episode/velocity_error`` (|mean v_x - v*|) and ``Episode/diverged``.
+
+    Args:
+        env: the batched env (its core is stepped directly: no TensorDict per step).
+        policy_obs: pieces of the policy group.
+        critic_obs: pieces of the critic group.
+        reward_scale: rsl-rl sees ``reward * reward_scale`` (the env's reward is the
+            spec's, ~300 per step; PPO's value clipping works in absolute units).
+    """
+
+    def __init__(
+        self,
+        env: ResidualWalkVecEnv,
+        policy_obs: tuple[str, ...] = ("observation", "phase", "lateral_offset"),
+        critic_obs: tuple[str, ...] = ("observation", "phase", "lateral_offset"),
+        reward_scale: float = 1.0,
+    ) -> None:
+        for name in (*policy_obs, *critic_obs):
+            if name not in OBS_PIECES:
+                raise ValueError(f"unknown observation piece {name!r}; choose from {OBS_PIECES}")
+        if not reward_scale > 0:
+            raise ValueError(f"reward_scale must be > 0, got {reward_scale!r}")
+        self.env = env
+        self.core = env.core
+        self.groups = {"policy": tuple(policy_obs), "critic": tuple(critic_obs)}
+        self.reward_scale = float(reward_scale)
+        self.num_envs = env.num_envs
+        self.num_actions = env.action_spec.shape[-1]
+        self.max_episode_length = env.config.max_episode_steps
+        self.device = "cpu"
+        self.cfg = dataclasses.asdict(env.config)
+        if not self.core._started:
+            self.core.reset()
+
+    @property
+    def episode_length_buf(self) -> torch.Tensor:
+        """Steps taken in each env's episode. Shape: (N,)."""
+        return self.core.episode_step
+
+    @episode_length_buf.setter
+    def episode_length_buf(self, value: torch.Tensor) -> None:
+        # rsl-rl's init_at_random_ep_len spreads the first truncations out.
+        self.core.episode_step.copy_(value)
+
+    def get_observations(self) -> TensorDict:
+        core = self.core
+        pieces = {
+            "observation": core.obs,
+            "phase": core.phase_features(),
+            "lateral_offset": (core.obs[:, OBS_POS.start + 1] - core.y0).unsqueeze(-1),
+        }
+        return TensorDict(
+            {
+                group: torch.cat([pieces[name] for name in names], dim=-1).to(torch.float32)
+                for group, names in self.groups.items()
+            },
+            batch_size=[self.num_envs],
+        )
+
+    def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        result = self.core.step(actions)
+        done = result.terminated | result.truncated
+        extras: dict = {"time_outs": result.truncated}
+        if bool(done.any()):
+            ids = done.nonzero().squeeze(-1)
+            extras["log"] = self._episode_log(ids, result)
+            self.core.reset(ids)
+        reward = (result.reward * self.reward_scale).to(torch.float32)
+        return self.get_observations(), reward, done.long(), extras
+
+    def _episode_log(self, ids: torch.Tensor, result) -> dict[str, torch.Tensor]:
+        stats = self.core.episode_log(ids)
+        length = stats.pop("length")
+        log = {
+            f"Episode_Reward/{key.removeprefix('sum/')}": (value / length.clamp(min=1)).mean()
+            for key, value in stats.items()
+            if key.startswith("sum/")
+        }
+        velocity = stats["forward_velocity"]
+        log["Episode/length"] = length.mean()
+        log["Episode/fall_rate"] = result.terminated[ids].double().mean()
+        log["Episode/forward_velocity"] = velocity.mean()
+        log["Episode/velocity_error"] = (velocity - self.core.config.expected_velocity).abs().mean()
+        log["Episode/diverged"] = result.diverged[ids].double().mean()
+        return log
