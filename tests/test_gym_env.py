@@ -195,7 +195,8 @@ def test_config_and_spec_arguments_do_not_mix():
     assert env.config.residual_scale == 0.05
 
 
-def test_divergence_ends_the_episode_and_reset_recovers():
+def test_divergence_ends_the_episode_and_reset_recovers(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs the divergence to ./MUJOCO_LOG.TXT
     env = ResidualWalkEnv(settle_steps=5)
     env.reset(seed=0)
     env.core.sim.qvel[0, :] = 1e12

@@ -129,7 +129,8 @@ def test_bad_actions_are_refused_or_clipped():
     assert td is not None
 
 
-def test_diverged_env_is_terminated_and_reset_without_harming_the_batch():
+def test_diverged_env_is_terminated_and_reset_without_harming_the_batch(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs the divergence to ./MUJOCO_LOG.TXT
     env = ResidualWalkVecEnv(3, QUICK, seed=0)
     reference = ResidualWalkVecEnv(3, QUICK, seed=0)
     td, ref = env.reset(), reference.reset()
