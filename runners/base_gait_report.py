@@ -36,9 +36,9 @@ def foot_track(seconds_settle: float = 3.0, cycles: int = 2, leg: int = 0) -> di
     commanded, actual, times, swing = [], [], [], []
     for k in range(n):
         # Sensors come from the start of the substep: compare with that substep's target.
-        target, is_swing = core.controller.foot_targets(core.phase)
-        commanded.append((target[0, leg] + hips[leg]).numpy())
-        swing.append(bool(is_swing[0, leg]))
+        tick = int(core.tick[0])
+        commanded.append((core.controller.target_table[tick, leg] + hips[leg]).numpy())
+        swing.append(bool(core.controller.swing_table[tick, leg]))
         core.step(torch.zeros(1, 12))
         actual.append(core.obs[0, OBS_FOOT_POS].view(4, 3)[leg].numpy().copy())
         times.append(k * core.dt)

@@ -37,6 +37,15 @@ class EnvConfig:
     """Half-width of the uniform yaw perturbation when randomizing. Radians."""
     tilt_noise: float = 0.02
     """Half-width of the uniform roll and pitch perturbations when randomizing. Radians."""
+    settle_pool: int = 0
+    """Settled starts kept ready for partial resets; 0 settles each resetting env in
+    place (the spec's behaviour). A pool is refilled in one batched rollout, so
+    resets of a few envs never run small, thread-starved settles."""
+    settle_reuse: int = 1
+    """Resets each pooled start serves before it is replaced by a fresh settle.
+    Every pooled start is an independent settle from its own random start, so
+    each reset's state has the same distribution as with in-place settling;
+    with reuse > 1 some resets share a start and settling costs 1/reuse."""
     num_threads: int = 0
     """Physics worker threads including the caller's; 0 uses all cores."""
     reward_weights: RewardWeights = field(default_factory=RewardWeights)
@@ -52,7 +61,14 @@ class EnvConfig:
                 raise bad(f.name, "must be finite")
         if not self.residual_scale > 0:
             raise bad("residual_scale", "must be > 0")
-        for name, low in (("max_episode_steps", 1), ("settle_steps", 0), ("decimation", 1)):
+        integers = (
+            ("max_episode_steps", 1),
+            ("settle_steps", 0),
+            ("decimation", 1),
+            ("settle_pool", 0),
+            ("settle_reuse", 1),
+        )
+        for name, low in integers:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise bad(name, f"must be an integer >= {low}")

@@ -96,8 +96,9 @@ class ResidualWalkCore:
             raise ValueError(f"joints {JOINT_NAMES} must be consecutive in qpos")
 
         n = num_envs
-        self.phase = torch.zeros(n, dtype=torch.float64)
-        """Gait phase in [0, 1) at the start of the next step. Shape: (N,)."""
+        self.tick = torch.zeros(n, dtype=torch.long)
+        """Physics substeps since gait phase 0, modulo the cycle, at the start of the
+        next step. Shape: (N,)."""
         self.episode_step = torch.zeros(n, dtype=torch.long)
         """Env steps taken in the current episode. Shape: (N,)."""
         self.y0 = torch.zeros(n, dtype=torch.float64)
@@ -113,9 +114,10 @@ class ResidualWalkCore:
             self._sensors = torch.from_numpy(self.sim.sensordata)
         self._settle_ctrl = self._base_gait_ctrl(config.settle_steps * config.decimation)
         self._stand_joints = self._base_gait_ctrl(1)[0]
-        self._settled_phase = math.fmod(
-            config.settle_steps * config.decimation * self.controller.phase_step, 1.0
-        )
+        self._settled_tick = config.settle_steps * config.decimation % self.controller.period
+        self._pool = _StartPool(self, config.settle_pool) if config.settle_pool else None
+        self.physics_steps = {"step": 0, "settle": 0}
+        """Physics substeps run so far: stepping the envs, and settling starts."""
         self._started = False
         self.seed(seed)
 
@@ -136,6 +138,10 @@ class ResidualWalkCore:
     ) -> None:
         """Start new episodes in the given envs (all if None), settled and ready.
 
+        A partial reset takes its starts from the settled-start pool when the
+        config has one (``settle_pool > 0``); otherwise, and for full resets, the
+        resetting envs are settled in place, all in one batched rollout.
+
         Args:
             env_ids: sorted unique env indices. Shape: (M,).
             randomize: perturb the starts; None uses ``config.randomize``.
@@ -144,24 +150,41 @@ class ResidualWalkCore:
         if ids.size == 0:
             return
         randomize = self.config.randomize if randomize is None else bool(randomize)
-        todo = ids
-        for _ in range(SETTLE_ATTEMPTS):
-            keys = self._seed + self._next_start + np.arange(todo.size, dtype=np.int64)
-            self._next_start += todo.size
-            self._place_starts(todo, keys, randomize)
-            failed = self._settle(todo)
-            todo = todo[failed]
-            if todo.size == 0:
-                break
         rows = torch.from_numpy(ids.astype(np.int64))
-        self._read_obs(rows)
-        self.phase[rows] = self._settled_phase
+        pool = self._pool
+        if (
+            pool is not None
+            and ids.size <= pool.size
+            and ids.size < self.num_envs
+            and randomize == self.config.randomize
+        ):
+            entries = pool.take(
+                ids.size, lambda stale: self._settle_fresh(pool.sim, stale, randomize)
+            )
+            self.sim.state[ids] = pool.sim.state[entries]
+            self.obs[rows] = _observation(pool.sensors[torch.from_numpy(entries)])
+        else:
+            self._settle_fresh(self.sim, ids, randomize)
+            self.obs[rows] = _observation(self._sensors[rows])
+        self.tick[rows] = self._settled_tick
         self.episode_step[rows] = 0
         self.y0[rows] = self.obs[rows, OBS_POS.start + 1]
         for total in (*self.episode_sums.values(), self.episode_distance):
             total[rows] = 0.0
         if ids.size == self.num_envs:
             self._started = True
+
+    def _settle_fresh(self, sim: BatchedSim, ids: np.ndarray, randomize: bool) -> None:
+        """Place fresh starts in rows ``ids`` of ``sim`` and settle them; redraw
+        the ones that fall or diverge (up to SETTLE_ATTEMPTS tries)."""
+        todo = ids
+        for _ in range(SETTLE_ATTEMPTS):
+            keys = self._seed + self._next_start + np.arange(todo.size, dtype=np.int64)
+            self._next_start += todo.size
+            self._place_starts(sim, todo, keys, randomize)
+            todo = todo[self._settle(sim, todo)]
+            if todo.size == 0:
+                break
 
     def _ids(self, env_ids: np.ndarray | Tensor | None) -> np.ndarray:
         if env_ids is None:
@@ -178,8 +201,10 @@ class ResidualWalkCore:
             raise ValueError(f"env ids must be sorted and unique, got {ids.tolist()}")
         return np.ascontiguousarray(ids)
 
-    def _place_starts(self, ids: np.ndarray, keys: np.ndarray, randomize: bool) -> None:
-        """Write fresh start states (standing in the phase-0 gait pose) into rows ``ids``."""
+    def _place_starts(
+        self, sim: BatchedSim, ids: np.ndarray, keys: np.ndarray, randomize: bool
+    ) -> None:
+        """Write fresh starts (standing in the phase-0 gait pose) into rows ``ids``."""
         cfg = self.config
         m = ids.size
         if randomize:
@@ -197,15 +222,15 @@ class ResidualWalkCore:
         ground = self.terrain.max_height(x, y, FOOTPRINT_RADIUS)
         foot_bottom = self.controller.stance_z - self.geometry.foot_radius
         z = ground + START_CLEARANCE - foot_bottom
-        self.sim.reset(ids)
-        qpos = self.sim.qpos
+        sim.reset(ids)
+        qpos = sim.qpos
         qpos[ids, 0] = x
         qpos[ids, 1] = y
         qpos[ids, 2] = z
         qpos[ids, 3:7] = _rpy_to_quat(roll, pitch, yaw)
         qpos[ids, self._joint_qpos] = self._stand_joints
 
-    def _settle(self, ids: np.ndarray) -> np.ndarray:
+    def _settle(self, sim: BatchedSim, ids: np.ndarray) -> np.ndarray:
         """Run the zero-residual gait on rows ``ids`` for settle_steps env steps.
 
         Returns:
@@ -214,21 +239,21 @@ class ResidualWalkCore:
         failed = np.zeros(ids.size, dtype=bool)
         total = self._settle_ctrl.shape[0]
         if total == 0:
-            failed |= self.sim.forward(ids)
+            failed |= sim.forward(ids)
         else:
             chunk = max(1, SETTLE_CTRL_BUDGET // (ids.size * self._settle_ctrl.shape[1]))
             for start in range(0, total, chunk):
                 piece = self._settle_ctrl[start : start + chunk]
                 ctrl = np.broadcast_to(piece, (ids.size, *piece.shape))
-                failed |= self.sim.rollout(np.ascontiguousarray(ctrl), ids)
-        quat = torch.from_numpy(np.asarray(self.sim.sensordata[ids, OBS_QUAT]))
+                failed |= sim.rollout(np.ascontiguousarray(ctrl), ids)
+                self.physics_steps["settle"] += ids.size * piece.shape[0]
+        quat = torch.from_numpy(np.asarray(sim.sensordata[ids, OBS_QUAT]))
         failed |= fallen(quat_to_rpy(quat)).numpy()
         return failed
 
     def _base_gait_ctrl(self, substeps: int) -> np.ndarray:
         """Zero-residual servo targets from phase 0. Shape: (substeps, 12)."""
-        start = torch.zeros(1, dtype=torch.float64)
-        ctrl, _ = self.controller.joint_targets(start, substeps)
+        ctrl, _ = self.controller.joint_targets(torch.zeros(1, dtype=torch.long), substeps)
         return np.ascontiguousarray(ctrl[0].numpy())
 
     # ------------------------------------------------------------------ step
@@ -248,20 +273,22 @@ class ResidualWalkCore:
         action = self.check_action(action)
         cfg = self.config
         residuals = action.view(self.num_envs, 4, 3) * cfg.residual_scale
-        ctrl, _ = self.controller.joint_targets(self.phase, cfg.decimation, residuals)
+        ctrl, _ = self.controller.joint_targets(self.tick, cfg.decimation, residuals)
         diverged = torch.from_numpy(self.sim.rollout(ctrl.numpy()))
+        self.physics_steps["step"] += self.num_envs * cfg.decimation
         # Sensors are those of the last substep's start.
-        sensed_phase = self.phase + (cfg.decimation - 1) * self.controller.phase_step
-        self.phase = torch.remainder(self.phase + cfg.decimation * self.controller.phase_step, 1.0)
+        sensed_tick = self.tick + (cfg.decimation - 1)
+        self.tick = torch.remainder(self.tick + cfg.decimation, self.controller.period)
         self.episode_step += 1
 
-        obs = self._read_obs()
+        obs = self.obs
+        obs.copy_(_observation(self._sensors))
         rpy = quat_to_rpy(obs[:, OBS_QUAT])
         forward_velocity = obs[:, OBS_LINVEL.start]
         terms = compute_terms(
             forward_velocity=forward_velocity,
             expected_velocity=cfg.expected_velocity,
-            swing=self.controller.is_swing(sensed_phase),
+            swing=self.controller.is_swing(sensed_tick),
             contact=obs[:, OBS_CONTACT] > 0.5,
             rpy=rpy,
             y=obs[:, OBS_POS.start + 1],
@@ -297,15 +324,6 @@ class ResidualWalkCore:
             )
         return action.clamp(-1.0, 1.0)
 
-    def _read_obs(self, rows: Tensor | None = None) -> Tensor:
-        """Copy sensordata into the observation (contacts as 0/1) and return it."""
-        if rows is None:
-            self.obs.copy_(self._sensors)
-        else:
-            self.obs[rows] = self._sensors[rows]
-        self.obs[:, OBS_CONTACT] = (self.obs[:, OBS_CONTACT] > 0).to(torch.float64)
-        return self.obs
-
     # ------------------------------------------------------------------ extras
     def set_terrain_scale(self, scale: float) -> None:
         """Scale the heightfield's roughness for all envs (0 flat .. 1 full).
@@ -314,6 +332,13 @@ class ResidualWalkCore:
         """
         self.terrain.set_scale(self.model, scale)
         self.sim.set_model(self.model)
+        if self._pool is not None:
+            self._pool.set_model(self.model)
+
+    @property
+    def phase(self) -> Tensor:
+        """Gait phase in [0, 1) at the start of the next step. Shape: (N,)."""
+        return self.controller.phase(self.tick)
 
     def phase_features(self) -> Tensor:
         """(sin 2πφ, cos 2πφ) of the gait phase. Shape: (N, 2)."""
@@ -333,6 +358,49 @@ class ResidualWalkCore:
             length.clamp(min=1.0) * self.control_dt
         )
         return log
+
+
+def _observation(sensors: Tensor) -> Tensor:
+    """Spec observations from sensor rows: contact counts become 0/1. (M, 65) -> (M, 65)."""
+    obs = sensors.clone()
+    obs[:, OBS_CONTACT] = (obs[:, OBS_CONTACT] > 0).to(obs.dtype)
+    return obs
+
+
+class _StartPool:
+    """Settled starts kept ready in a batch of their own.
+
+    Entries are served round-robin, each ``settle_reuse`` times; when fewer are
+    left than a reset needs, every used-up entry is replaced by a fresh settle in
+    one batched rollout.
+    """
+
+    def __init__(self, core: ResidualWalkCore, size: int) -> None:
+        self.size = size
+        self.reuse = core.config.settle_reuse
+        self.sim = BatchedSim(core.model, size, core.config.num_threads)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            self.sensors = torch.from_numpy(self.sim.sensordata)
+        self.uses_left = np.zeros(size, dtype=np.int64)
+        self._next = 0
+
+    def take(self, count: int, refill) -> np.ndarray:
+        """Indices of ``count`` entries (count <= size); ``refill(stale_ids)`` settles."""
+        if int((self.uses_left > 0).sum()) < count:
+            stale = np.flatnonzero(self.uses_left == 0).astype(np.int32)
+            refill(stale)
+            self.uses_left[stale] = self.reuse
+        order = (np.arange(self.size) + self._next) % self.size
+        chosen = order[self.uses_left[order] > 0][:count]
+        self._next = int(chosen[-1] + 1) % self.size
+        self.uses_left[chosen] -= 1
+        return chosen
+
+    def set_model(self, model) -> None:
+        """Run on a changed model; entries settled on the old one are dropped."""
+        self.sim.set_model(model)
+        self.uses_left[:] = 0
 
 
 def _rpy_to_quat(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:

@@ -157,6 +157,17 @@ class BezierGaitController:
             dim=-1,
         )
         self._check_reachable()
+        self.period = round(self.params.cycle_time / dt)
+        if abs(self.period * dt - self.params.cycle_time) > 1e-9:
+            raise ValueError(
+                f"GaitParameters.cycle_time ({self.params.cycle_time!r} s) must be a whole number "
+                f"of physics steps of {dt!r} s"
+            )
+        # The env only ever evaluates the gait at whole substeps from phase 0, so one
+        # cycle of base targets is tabulated once and looked up by integer tick.
+        ticks = torch.arange(self.period, dtype=dtype)
+        self.target_table, self.swing_table = self.foot_targets(ticks / self.period)
+        """Base foot targets and swing flags at each tick. Shapes: (P, 4, 3), (P, 4)."""
 
     def _check_reachable(self) -> None:
         """Raise ValueError if the stance line cannot be reached (an impossible gait)."""
@@ -174,18 +185,17 @@ class BezierGaitController:
                 f"{self.geometry.min_knee_reach:.3f}..{self.geometry.max_knee_reach:.3f} m)"
             )
 
-    @property
-    def phase_step(self) -> float:
-        """Phase advanced by one physics substep."""
-        return self.dt / self.params.cycle_time
+    def phase(self, tick: Tensor) -> Tensor:
+        """Gait phase in [0, 1) of integer ticks (substeps since phase 0). Same shape."""
+        return torch.remainder(tick, self.period).to(self.dtype) / self.period
 
     def leg_phases(self, phase: Tensor) -> Tensor:
         """Each leg's phase in [0, 1). (...,) -> (..., 4). Stance is [0, duty)."""
         return torch.remainder(phase.unsqueeze(-1) + self.leg_offsets, 1.0)
 
-    def is_swing(self, phase: Tensor) -> Tensor:
-        """Swing flags per leg. (...,) -> (..., 4) bool."""
-        return self.leg_phases(phase) >= self.params.duty_factor
+    def is_swing(self, tick: Tensor) -> Tensor:
+        """Swing flags per leg at integer ticks. (...,) -> (..., 4) bool."""
+        return self.swing_table[torch.remainder(tick, self.period)]
 
     def foot_targets(self, phase: Tensor) -> tuple[Tensor, Tensor]:
         """Base-gait foot targets in the hip frames.
@@ -211,18 +221,14 @@ class BezierGaitController:
         targets[..., 2] = z
         return targets, swing
 
-    def substep_phases(self, phase: Tensor, substeps: int) -> Tensor:
-        """Phase at the start of each of the next K substeps. (N,) -> (N, K)."""
-        k = torch.arange(substeps, dtype=phase.dtype, device=phase.device)
-        return torch.remainder(phase.unsqueeze(-1) + k * self.phase_step, 1.0)
-
     def joint_targets(
-        self, phase: Tensor, substeps: int, residuals: Tensor | None = None
+        self, tick: Tensor, substeps: int, residuals: Tensor | None = None
     ) -> tuple[Tensor, Tensor]:
-        """Servo targets for the next K substeps from per-env phase and foot residuals.
+        """Servo targets for the next K substeps from per-env ticks and foot residuals.
 
         Args:
-            phase: gait phase of each env at the start of the period. Shape: (N,).
+            tick: substeps since phase 0 of each env at the start of the period.
+                Shape: (N,) int64.
             substeps: K, physics substeps in the control period.
             residuals: foot offsets in metres, hip frame, held over the period.
                 Shape: (N, 4, 3); None for the pure base gait.
@@ -231,7 +237,8 @@ class BezierGaitController:
             ctrl: joint targets in actuator order. Shape: (N, K, 12).
             reachable: False where a foot target had to be projected. Shape: (N, K, 4).
         """
-        targets, _ = self.foot_targets(self.substep_phases(phase, substeps))
+        offsets = torch.arange(substeps, device=tick.device)
+        targets = self.target_table[torch.remainder(tick.unsqueeze(-1) + offsets, self.period)]
         if residuals is not None:
             targets = targets + residuals.unsqueeze(1)
         joints, reachable = leg_ik(targets, self.geometry)

@@ -13,6 +13,7 @@ Foot positions here are in the *hip frame*: origin at the leg's hip point
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -99,6 +100,15 @@ def _knee_reach(geometry: LegGeometry, knee: float) -> float:
     return math.sqrt(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * math.cos(knee))
 
 
+@functools.lru_cache(maxsize=16)
+def _constants(geometry: LegGeometry, dtype: torch.dtype) -> tuple[Tensor, Tensor, Tensor]:
+    """Abduction offsets, lower and upper joint limits as tensors (cached: built once)."""
+    offset = torch.tensor(geometry.abduction_offsets, dtype=dtype)
+    lower = torch.tensor(geometry.joint_lower, dtype=dtype)
+    upper = torch.tensor(geometry.joint_upper, dtype=dtype)
+    return offset, lower, upper
+
+
 def leg_fk(joints: Tensor, geometry: LegGeometry) -> Tensor:
     """Foot centres in the hip frames from joint angles.
 
@@ -111,7 +121,7 @@ def leg_fk(joints: Tensor, geometry: LegGeometry) -> Tensor:
     """
     q1, q2, q3 = joints.unbind(-1)
     l1, l2 = geometry.thigh_length, geometry.shin_length
-    offset = torch.tensor(geometry.abduction_offsets, dtype=joints.dtype, device=joints.device)
+    offset = _constants(geometry, joints.dtype)[0]
     # Foot in the leg plane (hip-joint frame before abduction).
     x = -l1 * torch.sin(q2) - l2 * torch.sin(q2 + q3)
     z = -l1 * torch.cos(q2) - l2 * torch.cos(q2 + q3)
@@ -136,11 +146,8 @@ def leg_ik(feet: Tensor, geometry: LegGeometry) -> tuple[Tensor, Tensor]:
         joints: (abduction, hip, knee) per leg. Shape: (..., 4, 3).
         reachable: True where the target was reached exactly. Shape: (..., 4).
     """
-    dtype, device = feet.dtype, feet.device
     l1, l2 = geometry.thigh_length, geometry.shin_length
-    offset = torch.tensor(geometry.abduction_offsets, dtype=dtype, device=device)
-    lower = torch.tensor(geometry.joint_lower, dtype=dtype, device=device)
-    upper = torch.tensor(geometry.joint_upper, dtype=dtype, device=device)
+    offset, lower, upper = _constants(geometry, feet.dtype)
     px, py, pz = feet.unbind(-1)
 
     # Abduction: the foot lies in the plane swept by the thigh, |offset| from the axis.

@@ -55,7 +55,7 @@ def test_spec_custom_gait_is_accepted():
     # The spec's example: the swing apex is out of reach and gets projected, not rejected.
     params = GaitParameters(step_height=0.05, step_length=0.10, cycle_time=0.8, body_height=0.06)
     controller = BezierGaitController(params)
-    ctrl, reachable = controller.joint_targets(torch.zeros(2, dtype=F64), 400)
+    ctrl, reachable = controller.joint_targets(torch.zeros(2, dtype=torch.long), 400)
     assert torch.isfinite(ctrl).all()
     assert reachable.float().mean() > 0.5
 
@@ -86,12 +86,12 @@ def _foot_track(controller, phases):
 
 def test_trot_pairs_diagonals_half_a_cycle_apart():
     controller = BezierGaitController()
-    phases = torch.linspace(0, 1, 601, dtype=F64)[:-1]
-    swing = controller.is_swing(phases)
+    ticks = torch.arange(controller.period)
+    swing = controller.is_swing(ticks)
     fl, fr, rl, rr = swing.unbind(-1)
     assert torch.equal(fl, rr) and torch.equal(fr, rl)
     assert not (fl & fr).any()  # diagonal pairs never swing together
-    shifted = controller.is_swing(torch.remainder(phases + 0.5, 1.0))
+    shifted = controller.is_swing(ticks + controller.period // 2)
     assert torch.equal(shifted[:, 0], fr)
     assert swing.float().mean() == pytest.approx(1 - controller.params.duty_factor, abs=0.01)
 
@@ -130,20 +130,34 @@ def test_swing_meets_stance_smoothly_and_reaches_step_height():
 
 def test_joint_targets_shapes_and_residuals_move_the_feet():
     controller = BezierGaitController()
-    phase = torch.tensor([0.0, 0.3, 0.7], dtype=F64)
-    base, ok = controller.joint_targets(phase, 10)
+    tick = torch.tensor([0, 90, 210])
+    base, ok = controller.joint_targets(tick, 10)
     assert base.shape == (3, 10, 12) and ok.shape == (3, 10, 4) and ok.all()
     residuals = torch.zeros(3, 4, 3, dtype=F64)
     residuals[:, 1] = torch.tensor([0.01, -0.005, 0.008], dtype=F64)
-    moved, ok = controller.joint_targets(phase, 10, residuals)
+    moved, ok = controller.joint_targets(tick, 10, residuals)
     assert ok.all()
     g = controller.geometry
     shift = leg_fk(moved.view(3, 10, 4, 3), g) - leg_fk(base.view(3, 10, 4, 3), g)
     torch.testing.assert_close(shift, residuals.unsqueeze(1).expand(3, 10, 4, 3))
 
 
-def test_substep_phases_advance_by_dt_over_cycle_time():
+def test_tables_hold_one_cycle_at_every_substep():
     controller = BezierGaitController(dt=0.002)
-    phases = controller.substep_phases(torch.tensor([0.995], dtype=F64), 4)
-    expected = torch.remainder(0.995 + torch.arange(4, dtype=F64) * 0.002 / 0.6, 1.0)
-    torch.testing.assert_close(phases[0], expected)
+    assert controller.period == 300  # 0.6 s / 2 ms
+    ticks = torch.tensor([0, 1, 299, 300, 451])
+    expected_phase = torch.tensor([0, 1, 299, 0, 151], dtype=F64) / 300
+    torch.testing.assert_close(controller.phase(ticks), expected_phase)
+    targets, swing = controller.foot_targets(expected_phase)
+    torch.testing.assert_close(controller.target_table[ticks % 300], targets)
+    assert torch.equal(controller.is_swing(ticks), swing)
+    ctrl, _ = controller.joint_targets(torch.tensor([298]), 4)
+    step_by_step = torch.cat(
+        [controller.joint_targets(torch.tensor([t]), 1)[0] for t in (298, 299, 0, 1)], 1
+    )
+    torch.testing.assert_close(ctrl, step_by_step)
+
+
+def test_cycle_must_be_a_whole_number_of_physics_steps():
+    with pytest.raises(ValueError, match="cycle_time"):
+        BezierGaitController(GaitParameters(cycle_time=0.6011), dt=0.002)

@@ -10,7 +10,7 @@ def _standing_sim(model, n, threads):
     sim = BatchedSim(model, n, threads)
     sim.reset()
     controller = BezierGaitController(dt=model.opt.timestep)
-    stand = controller.joint_targets(torch.zeros(1, dtype=torch.float64), 1)[0][0, 0].numpy()
+    stand = controller.joint_targets(torch.zeros(1, dtype=torch.long), 1)[0][0, 0].numpy()
     sim.qpos[:, 0] = -3.5
     sim.qpos[:, 1] = np.linspace(-1, 1, n)
     sim.qpos[:, 2] = 0.12
@@ -18,9 +18,9 @@ def _standing_sim(model, n, threads):
     return sim, controller
 
 
-def _gait_ctrl(controller, n, substeps, start=0.0):
-    phase = torch.full((n,), start, dtype=torch.float64)
-    return np.ascontiguousarray(controller.joint_targets(phase, substeps)[0].numpy())
+def _gait_ctrl(controller, n, substeps, start=0):
+    tick = torch.full((n,), start, dtype=torch.long)
+    return np.ascontiguousarray(controller.joint_targets(tick, substeps)[0].numpy())
 
 
 def test_results_do_not_depend_on_the_thread_count(train_model):
@@ -28,7 +28,7 @@ def test_results_do_not_depend_on_the_thread_count(train_model):
     for threads in (1, 2):
         sim, controller = _standing_sim(train_model, 5, threads)
         for k in range(10):
-            sim.rollout(_gait_ctrl(controller, 5, 10, start=k * 10 * controller.phase_step))
+            sim.rollout(_gait_ctrl(controller, 5, 10, start=k * 10))
         finals.append(sim.state.copy())
     np.testing.assert_array_equal(finals[0], finals[1])
 

@@ -1,0 +1,81 @@
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from rwalk import EnvConfig, ResidualWalkCore
+from rwalk.constants import OBS_POS
+
+QUICK = dataclasses.replace(EnvConfig(), settle_steps=10, randomize=True)
+
+
+def test_step_before_reset_is_refused():
+    core = ResidualWalkCore(QUICK, 2, seed=0)
+    with pytest.raises(RuntimeError, match="reset"):
+        core.step(torch.zeros(2, 12))
+
+
+def test_physics_steps_are_counted():
+    core = ResidualWalkCore(QUICK, 3, seed=0)
+    core.reset()
+    assert core.physics_steps == {"step": 0, "settle": 3 * 10 * 10}
+    core.step(torch.zeros(3, 12))
+    core.reset(np.array([1]))
+    assert core.physics_steps == {"step": 3 * 10, "settle": 4 * 10 * 10}
+
+
+def test_pooled_resets_return_settled_starts_and_refill_in_one_batch():
+    config = dataclasses.replace(QUICK, settle_pool=4, settle_reuse=2)
+    core = ResidualWalkCore(config, 3, seed=0)
+    core.reset()
+    settled_before = core.physics_steps["settle"]
+    core.reset(np.array([0, 2]))
+    # The empty pool was filled once: 4 starts x 10 env steps x 10 substeps.
+    assert core.physics_steps["settle"] - settled_before == 4 * 100
+    pool = core._pool
+    assert pool.uses_left.tolist() == [1, 1, 2, 2]
+    np.testing.assert_array_equal(core.sim.state[[0, 2]], pool.sim.state[[0, 1]])
+    assert core.episode_step[[0, 2]].tolist() == [0, 0]
+    assert core.tick[0].item() == 10 * 10 % core.controller.period
+    torch.testing.assert_close(core.y0[[0, 2]], core.obs[[0, 2], OBS_POS.start + 1])
+    # Round robin: the next reset uses entry 2, the one after entries 3 and 0.
+    core.reset(np.array([1]))
+    core.reset(np.array([0, 2]))
+    assert pool.uses_left.tolist() == [0, 1, 1, 1]
+    assert core.physics_steps["settle"] - settled_before == 4 * 100  # no refill yet
+    # Each entry is its own settle from its own random start.
+    assert len({tuple(np.round(pool.sim.qpos[i, :2], 9)) for i in range(4)}) == 4
+
+
+def test_pooled_starts_step_like_in_place_starts():
+    pooled = ResidualWalkCore(dataclasses.replace(QUICK, settle_pool=2), 2, seed=5)
+    pooled.reset()
+    pooled.reset(np.array([1]))  # fills the pool from start keys 2 and 3 and takes key 2
+    reference = ResidualWalkCore(QUICK, 1, seed=5 + 2)  # a single env whose first start is key 7
+    reference.reset()
+    torch.testing.assert_close(pooled.obs[1], reference.obs[0], rtol=0, atol=0)
+    np.testing.assert_array_equal(pooled.sim.state[1], reference.sim.state[0])
+    for _ in range(5):
+        a = pooled.step(torch.zeros(2, 12))
+        b = reference.step(torch.zeros(1, 12))
+        # torch's vectorised math may round the last bit differently for batches of
+        # different lengths, so N=2 and N=1 agree to ~1e-15, not bit for bit.
+        torch.testing.assert_close(a.obs[1], b.obs[0], rtol=0, atol=1e-12)
+
+
+def test_terrain_change_drops_pooled_starts():
+    core = ResidualWalkCore(dataclasses.replace(QUICK, settle_pool=2), 2, seed=0)
+    core.reset()
+    core.reset(np.array([0]))
+    assert core._pool.uses_left.sum() == 1
+    core.set_terrain_scale(0.5)
+    assert core._pool.uses_left.sum() == 0
+
+
+@pytest.mark.parametrize(
+    ("field", "value"), [("settle_pool", -1), ("settle_reuse", 0), ("decimation", 0)]
+)
+def test_bad_config_names_the_field(field, value):
+    with pytest.raises(ValueError, match=field):
+        dataclasses.replace(EnvConfig(), **{field: value})
