@@ -278,7 +278,9 @@ class ResidualWalkCore:
         self.physics_steps["step"] += self.num_envs * cfg.decimation
         # Sensors are those of the last substep's start.
         sensed_tick = self.tick + (cfg.decimation - 1)
-        self.tick = torch.remainder(self.tick + cfg.decimation, self.controller.period)
+        # In place, like every state update here: callers step inside torch.inference_mode
+        # (rsl-rl does) and reset outside it.
+        self.tick.add_(cfg.decimation).remainder_(self.controller.period)
         self.episode_step += 1
 
         obs = self.obs

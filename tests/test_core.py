@@ -16,6 +16,16 @@ def test_step_before_reset_is_refused():
         core.step(torch.zeros(2, 12))
 
 
+def test_stepping_in_inference_mode_then_resetting_outside_works():
+    core = ResidualWalkCore(QUICK, 2, seed=0)
+    core.reset()
+    with torch.inference_mode():
+        core.step(torch.zeros(2, 12))
+    core.reset(np.array([1]))
+    core.step(torch.zeros(2, 12))
+    assert core.episode_step.tolist() == [2, 1]
+
+
 def test_physics_steps_are_counted():
     core = ResidualWalkCore(QUICK, 3, seed=0)
     core.reset()

@@ -1,0 +1,447 @@
+"""Throughput and memory of the env beside its physics floor, measured in one run.
+
+    python -m runners.bench                      # the full sweep (about 25 minutes on 2 cores)
+    python -m runners.bench --quick              # N in {16, 1024}, short windows
+    python -m runners.bench --json bench.json --plot docs/performance.png
+
+Modes, all on world_train with the training defaults, the same N, threads and
+10 substeps per env step:
+
+  a  raw mujoco.rollout (persistent pool, preallocated outputs, skip_checks) replaying
+     the base gait's servo targets, states carried in numpy: the physics floor
+  b  ResidualWalkVecEnv.step_and_maybe_reset with random actions, resets included
+  c  rsl-rl's collection loop: PPO.act + RslRlVecEnv.step + PPO.process_env_step
+  d  gymnasium SyncVectorEnv (1 process) and AsyncVectorEnv (one worker process per
+     core) over the single-env ResidualWalkEnv
+
+Each measurement runs in a fresh subprocess (its own peak RSS). Episodes start
+spread over their length (like rsl-rl's init_at_random_ep_len), so resets happen
+at their long-run rate inside the timing window; every physics substep counts,
+settling included.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+SIZES = (1, 16, 256, 1024, 4096, 8192)
+QUICK_SIZES = (16, 1024)
+GYM_SYNC_SIZES = (1, 16)
+
+
+def _config(threads: int):
+    from runners.train import Args, env_config
+
+    return env_config(dataclasses.replace(Args(), threads=threads))
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _timed(step, window: float, min_steps: int = 3) -> tuple[int, float]:
+    """Call step() until window seconds and min_steps have passed; (calls, seconds)."""
+    calls, start = 0, time.perf_counter()
+    while True:
+        step()
+        calls += 1
+        elapsed = time.perf_counter() - start
+        if elapsed >= window and calls >= min_steps:
+            return calls, elapsed
+
+
+def measure_raw(n: int, threads: int, window: float) -> dict:
+    import mujoco
+    from mujoco import rollout
+
+    from rwalk.core import ResidualWalkCore
+
+    config = dataclasses.replace(_config(threads), settle_steps=0, settle_pool=0)
+    core = ResidualWalkCore(config, n, seed=0)
+    core.reset()
+    model, k = core.model, config.decimation
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    data = mujoco.MjData(model)
+    state = np.empty((n, mujoco.mj_stateSize(model, spec)))
+    for i in range(n):
+        core.sim.batch.get_data(i, data)
+        mujoco.mj_getState(model, data, state[i], spec)
+    cycle = core._base_gait_ctrl(core.controller.period + k)
+    nthread = threads or os.cpu_count() or 1
+    pool = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
+    datas = [mujoco.MjData(model) for _ in range(max(nthread, 1))]
+    models = [model] * n
+    out_state = np.empty((n, k, state.shape[1]))
+    out_sensors = np.empty((n, k, model.nsensordata))
+    tick = [0]
+
+    def step() -> None:
+        t = tick[0]
+        ctrl = np.ascontiguousarray(np.broadcast_to(cycle[t : t + k], (n, k, model.nu)))
+        pool.rollout(
+            models, datas if nthread > 1 else datas[:1], state, ctrl,
+            state=out_state, sensordata=out_sensors, skip_checks=True, nstep=k,
+        )  # fmt: skip
+        state[:] = out_state[:, -1]
+        tick[0] = (t + k) % core.controller.period
+
+    for _ in range(2):
+        step()
+    calls, seconds = _timed(step, window)
+    return {
+        "env_steps_per_s": calls * n / seconds,
+        "physics_steps_per_s": calls * n * k / seconds,
+        "settle_share": 0.0,
+    }
+
+
+def _spread_episodes(core, generator: torch.Generator) -> None:
+    high = core.config.max_episode_steps
+    core.episode_step.copy_(torch.randint(0, high, core.episode_step.shape, generator=generator))
+
+
+def _time_rollouts(core) -> list[float]:
+    """Wrap the core's (and its pool's) MuJoCo rollouts; returns the running total."""
+    total = [0.0]
+    sims = [core.sim] + ([core._pool.sim] if core._pool is not None else [])
+    for sim in sims:
+        original = sim.rollout
+
+        def timed(*args, _original=original, **kwargs):
+            start = time.perf_counter()
+            try:
+                return _original(*args, **kwargs)
+            finally:
+                total[0] += time.perf_counter() - start
+
+        sim.rollout = timed
+    return total
+
+
+def _run_steps(core, step, n: int, window: float) -> dict:
+    """Time step() with steady-state resets; report throughput and where time went."""
+    in_mujoco = _time_rollouts(core)
+    step()
+    before = dict(core.physics_steps)
+    in_mujoco[0] = 0.0
+    calls, seconds = _timed(step, window)
+    physics = {key: core.physics_steps[key] - before[key] for key in before}
+    total = physics["step"] + physics["settle"]
+    return {
+        "env_steps_per_s": calls * n / seconds,
+        "physics_steps_per_s": total / seconds,
+        "settle_share": physics["settle"] / total,
+        "time_in_mujoco": in_mujoco[0] / seconds,
+    }
+
+
+def measure_env(n: int, threads: int, window: float) -> dict:
+    from rwalk import ResidualWalkVecEnv
+
+    started = time.perf_counter()
+    env = ResidualWalkVecEnv(n, _config(threads), seed=0)
+    td = env.reset()
+    reset_seconds = time.perf_counter() - started
+    reset_settle = env.core.physics_steps["settle"]
+    gen = torch.Generator().manual_seed(0)
+    _spread_episodes(env.core, gen)
+
+    def step() -> None:
+        nonlocal td
+        td.set("action", torch.rand(n, 12, generator=gen) * 2 - 1)
+        _, td = env.step_and_maybe_reset(td)
+
+    result = _run_steps(env.core, step, n, window)
+    result["first_reset_seconds_per_env"] = reset_seconds / n
+    result["first_reset_substeps_per_env"] = reset_settle / n
+    return result
+
+
+def measure_rsl_rl(n: int, threads: int, window: float) -> dict:
+    from rsl_rl.runners import OnPolicyRunner
+
+    from runners.train import Args, make_env, rsl_rl_config
+
+    args = dataclasses.replace(Args(), num_envs=n, threads=threads)
+    env = make_env(args)
+    runner = OnPolicyRunner(env, rsl_rl_config(args), log_dir=None, device="cpu")
+    alg = runner.alg
+    _spread_episodes(env.core, torch.Generator().manual_seed(0))
+    obs = env.get_observations()
+    filled = [0]
+
+    def step() -> None:
+        nonlocal obs
+        with torch.inference_mode():
+            actions = alg.act(obs)
+            obs, rewards, dones, extras = env.step(actions)
+            alg.process_env_step(obs, rewards, dones, extras)
+        filled[0] += 1
+        if filled[0] == args.num_steps_per_env:
+            alg.storage.clear()
+            filled[0] = 0
+
+    return _run_steps(env.core, step, n, window)
+
+
+class _SpreadEpisodes:
+    """Env factory for gymnasium vector envs: a single env whose first episode is
+    already ``offset`` steps old, like the batched modes' spread episodes."""
+
+    def __init__(self, index: int, offset: int) -> None:
+        self.index, self.offset = index, offset
+
+    def __call__(self):
+        from rwalk import ResidualWalkEnv
+
+        config = dataclasses.replace(_config(1), settle_pool=0)
+        env = ResidualWalkEnv(config=config, seed=self.index)
+        original_reset, offset = env.reset, [self.offset]
+
+        def reset(**kwargs):
+            out = original_reset(**kwargs)
+            if offset:
+                env.core.episode_step[0] = offset.pop()
+            return out
+
+        env.reset = reset
+        return env
+
+
+def measure_gym(n: int, processes: int, window: float) -> dict:
+    import gymnasium
+
+    config = dataclasses.replace(_config(1), settle_pool=0)
+    gen = np.random.default_rng(0)
+    offsets = gen.integers(0, config.max_episode_steps, n)
+    makers = [_SpreadEpisodes(i, int(offsets[i])) for i in range(n)]
+    if processes > 1:
+        vec = gymnasium.vector.AsyncVectorEnv(makers, context="fork")
+    else:
+        vec = gymnasium.vector.SyncVectorEnv(makers)
+    vec.reset(seed=0)
+    vec.action_space.seed(0)
+    resets = [0]
+
+    def step() -> None:
+        _, _, terminated, truncated, _ = vec.step(vec.action_space.sample())
+        resets[0] += int(np.sum(terminated | truncated))
+
+    step()
+    resets[0] = 0
+    calls, seconds = _timed(step, window)
+    vec.close()
+    k = config.decimation
+    # Each reset settles settle_steps env steps (a start that falls is redrawn: rare).
+    step_physics = calls * n * k
+    settle_physics = resets[0] * config.settle_steps * k
+    total = step_physics + settle_physics
+    return {
+        "env_steps_per_s": calls * n / seconds,
+        "physics_steps_per_s": total / seconds,
+        "settle_share": settle_physics / total,
+    }
+
+
+MEASURES = {"a": measure_raw, "b": measure_env, "c": measure_rsl_rl, "d": measure_gym}
+LABELS = {
+    "a": "raw mujoco.rollout (floor)",
+    "b": "ResidualWalkVecEnv",
+    "c": "rsl-rl collection",
+    "d": "gymnasium vector env",
+}
+
+
+def worker(mode: str, n: int, threads: int, window: float) -> None:
+    """Measure one configuration and print its result as one JSON line."""
+    torch.set_num_threads(max(threads, 1) if threads else os.cpu_count() or 1)
+    result = MEASURES[mode](n, threads, window)
+    result.update(mode=mode, n=n, threads=threads, peak_rss_mb=_peak_rss_mb())
+    print("RESULT " + json.dumps(result), flush=True)
+
+
+def plan(quick: bool) -> list[tuple[str, int, int]]:
+    cores = os.cpu_count() or 1
+    sizes = QUICK_SIZES if quick else SIZES
+    thread_counts = sorted({1, cores})
+    runs = [(mode, n, t) for n in sizes for t in thread_counts for mode in "abc"]
+    runs += [("d", n, 1) for n in (GYM_SYNC_SIZES[-1:] if quick else GYM_SYNC_SIZES)]
+    if cores > 1:
+        runs.append(("d", cores, cores))  # AsyncVectorEnv: one worker process per core
+    return runs
+
+
+def _ratio_rows(results: list[dict]) -> None:
+    floor = {(r["n"], r["threads"]): r["physics_steps_per_s"] for r in results if r["mode"] == "a"}
+    for r in results:
+        base = floor.get((r["n"], r["threads"]))
+        r["ratio_to_floor"] = r["physics_steps_per_s"] / base if base else None
+
+
+def table(results: list[dict]) -> str:
+    lines = [
+        "| mode | N | threads | env steps/s | physics steps/s | ratio to (a) | settle share "
+        "| time in MuJoCo | peak RSS (MB) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in sorted(results, key=lambda r: (r["mode"], r["n"], r["threads"])):
+        ratio = f"{r['ratio_to_floor']:.3f}" if r.get("ratio_to_floor") else "—"
+        mujoco_share = f"{r['time_in_mujoco']:.1%}" if "time_in_mujoco" in r else "—"
+        lines.append(
+            f"| {r['mode']} {LABELS[r['mode']]} | {r['n']} | {r['threads']} | "
+            f"{r['env_steps_per_s']:,.0f} | {r['physics_steps_per_s']:,.0f} | {ratio} | "
+            f"{r['settle_share']:.1%} | {mujoco_share} | {r['peak_rss_mb']:,.0f} |"
+        )
+    return "\n".join(lines)
+
+
+def summary(results: list[dict]) -> list[str]:
+    """The issue's floors, computed from the sweep."""
+    out = []
+    by = {(r["mode"], r["n"], r["threads"]): r for r in results}
+    cores = max(r["threads"] for r in results)
+    for mode, n, t in [(m, n, t) for m in "bc" for n in (1024, 4096, 8192) for t in (1, cores)]:
+        if (mode, n, t) in by:
+            ratio = by[(mode, n, t)]["ratio_to_floor"]
+            out.append(f"({mode})/(a) physics steps/s at N={n}, {t} thread(s): {ratio:.3f}")
+    best_b = max((r for r in results if r["mode"] == "b"), key=lambda r: r["env_steps_per_s"])
+    gyms = [r for r in results if r["mode"] == "d"]
+    if gyms:
+        best_d = max(gyms, key=lambda r: r["env_steps_per_s"])
+        out.append(
+            f"best (b) {best_b['env_steps_per_s']:,.0f} env steps/s (N={best_b['n']}) vs best (d) "
+            f"{best_d['env_steps_per_s']:,.0f} (N={best_d['n']}, {best_d['threads']} process(es)): "
+            f"{best_b['env_steps_per_s'] / best_d['env_steps_per_s']:.2f}x"
+        )
+    if ("d", 1, 1) in by and ("a", 1, 1) in by:
+        single, floor = by[("d", 1, 1)], by[("a", 1, 1)]
+        share = single["physics_steps_per_s"] / floor["physics_steps_per_s"]
+        out.append(
+            f"single env: {single['env_steps_per_s']:,.0f} steps/s, {share:.3f} of the N=1 floor"
+        )
+    if ("b", 256, cores) in by and ("b", 4096, cores) in by:
+        small, large = by[("b", 256, cores)], by[("b", 4096, cores)]
+        per_env = (large["peak_rss_mb"] - small["peak_rss_mb"]) * 1024 / (4096 - 256)
+        out.append(f"memory per additional env (N=4096 vs 256): {per_env:.1f} KB")
+    if ("b", 4096, 1) in by and ("b", 4096, cores) in by and cores > 1:
+        scale = by[("b", 4096, cores)]["env_steps_per_s"] / by[("b", 4096, 1)]["env_steps_per_s"]
+        out.append(f"(b) {cores} threads vs 1 at N=4096: {scale:.2f}x")
+    if ("b", 4096, cores) in by:
+        r = by[("b", 4096, cores)]
+        out.append(
+            f"training defaults at N=4096: {r['env_steps_per_s']:,.0f} env steps/s, settle share "
+            f"{r['settle_share']:.1%}; first reset "
+            f"{r['first_reset_seconds_per_env'] * 1e3:.1f} ms per env"
+        )
+    return out
+
+
+def plot(results: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 5))
+    for mode in "abc":
+        for t in sorted({r["threads"] for r in results}):
+            rows = sorted(
+                (r for r in results if r["mode"] == mode and r["threads"] == t),
+                key=lambda r: r["n"],
+            )
+            if rows:
+                ax.plot(
+                    [r["n"] for r in rows], [r["physics_steps_per_s"] for r in rows],
+                    marker="o", linestyle="-" if t > 1 else "--",
+                    label=f"({mode}) {LABELS[mode]}, {t} thread{'s' if t > 1 else ''}",
+                )  # fmt: skip
+    for r in results:
+        if r["mode"] == "d":
+            kind = "Async" if r["threads"] > 1 else "Sync"
+            ax.scatter([r["n"]], [r["physics_steps_per_s"]], marker="x", s=60, color="k")
+            ax.annotate(f"(d) {kind}VectorEnv", (r["n"], r["physics_steps_per_s"]), fontsize=7)
+    ax.set(xscale="log", xlabel="N (envs)", ylabel="physics steps / s (settling included)")
+    ax.set_title("Throughput beside the raw mujoco.rollout floor (world_train)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--quick", action="store_true", help="N in {16, 1024}, 2 s windows")
+    parser.add_argument("--seconds", type=float, help="timing window per measurement")
+    parser.add_argument("--json", type=Path, help="save the results here")
+    parser.add_argument("--plot", type=Path, help="save a throughput-vs-N PNG here")
+    parser.add_argument("--only", help="measure one 'mode,N,threads' (e.g. b,1024,2)")
+    parser.add_argument("--worker", nargs=4, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.worker:
+        mode, n, threads, window = args.worker
+        worker(mode, int(n), int(threads), float(window))
+        return []
+    window = args.seconds or (2.0 if args.quick else 6.0)
+    runs = plan(args.quick)
+    if args.only:
+        mode, n, threads = args.only.split(",")
+        runs = [(mode, int(n), int(threads))]
+    results = []
+    started = time.perf_counter()
+    for i, (mode, n, threads) in enumerate(runs, 1):
+        print(
+            f"[{i}/{len(runs)}] ({mode}) {LABELS[mode]}, N={n}, threads={threads} ...",
+            end=" ",
+            flush=True,
+        )
+        command = [
+            sys.executable,
+            "-m",
+            "runners.bench",
+            "--worker",
+            mode,
+            str(n),
+            str(threads),
+            str(window),
+        ]
+        done = subprocess.run(command, capture_output=True, text=True, check=False)
+        lines = [line for line in done.stdout.splitlines() if line.startswith("RESULT ")]
+        if done.returncode != 0 or not lines:
+            print(f"failed:\n{done.stderr[-2000:]}")
+            continue
+        result = json.loads(lines[-1][len("RESULT ") :])
+        results.append(result)
+        print(
+            f"{result['env_steps_per_s']:,.0f} env steps/s, "
+            f"{result['physics_steps_per_s']:,.0f} physics steps/s "
+            f"({time.perf_counter() - started:.0f} s elapsed)",
+            flush=True,
+        )
+    _ratio_rows(results)
+    print()
+    print(table(results))
+    print()
+    for line in summary(results):
+        print(line)
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2))
+    if args.plot:
+        plot(results, args.plot)
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,164 @@
+"""The runner scripts, run as a user would (subprocesses, tiny budgets)."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY_TRAIN = [
+    "--num-envs", "16", "--num-steps-per-env", "4", "--save-interval", "1",
+    "--settle-steps", "2", "--settle-pool", "8", "--max-episode-steps", "30",
+    "--hidden-dims", "16", "16",
+]  # fmt: skip
+
+
+def run(*args: str, env: dict | None = None, timeout: int = 600) -> str:
+    done = subprocess.run(
+        [sys.executable, "-m", *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={**os.environ, **(env or {})},
+        check=False,
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    return done.stdout + done.stderr
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> Path:
+    log_dir = tmp_path_factory.mktemp("train")
+    out = run("runners.train", *TINY_TRAIN, "--max-iterations", "2", "--log-dir", str(log_dir))
+    assert "[rwalk] iteration 2/2" in out and "ETA" in out
+    return log_dir
+
+
+def test_train_writes_checkpoints_logs_config_and_exports(trained):
+    assert (trained / "model_1.pt").is_file()
+    assert torch.load(trained / "model_1.pt", weights_only=False)["iter"] == 1
+    assert list(trained.glob("events.out.tfevents.*"))
+    config = json.loads((trained / "config.json").read_text())
+    assert config["args"]["num_envs"] == 16 and config["env"]["settle_pool"] == 8
+    assert (trained / "exported" / "policy.pt").is_file()
+    assert (trained / "exported" / "policy.onnx").is_file()
+
+
+def test_tensorboard_has_every_reward_term(trained):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    tags = set()
+    for events in trained.glob("events.out.tfevents.*"):
+        accumulator = EventAccumulator(str(events))
+        accumulator.Reload()
+        tags |= set(accumulator.Tags()["scalars"])
+    for tag in (
+        "Episode_Reward/velocity_tracking",
+        "Episode_Reward/contact_pattern",
+        "Episode_Reward/stability",
+        "Episode_Reward/lateral",
+        "Episode/length",
+        "Episode/fall_rate",
+        "Episode/forward_velocity",
+        "Train/mean_reward",
+    ):
+        assert tag in tags
+
+
+def test_resume_continues_the_iteration_count(trained, tmp_path):
+    out = run(
+        "runners.train", *TINY_TRAIN, "--max-iterations", "4", "--log-dir", str(tmp_path),
+        "--resume", str(trained / "model_1.pt"), "--no-export",
+    )  # fmt: skip
+    assert "next iteration 2" in out
+    assert torch.load(tmp_path / "model_3.pt", weights_only=False)["iter"] == 3
+    assert not (tmp_path / "model_0.pt").exists() and not (tmp_path / "model_1.pt").exists()
+
+
+def test_exported_policies_act_like_the_checkpoint(trained):
+    from runners.play import eval_config, load_policy
+    from rwalk import ResidualWalkVecEnv
+    from rwalk.wrappers import RslRlVecEnv
+
+    env = ResidualWalkVecEnv(4, eval_config(settle_steps=3), seed=0)
+    env.core.reset()
+    act = load_policy(trained / "model_1.pt", env)
+    obs = RslRlVecEnv(env).get_observations()["policy"]
+    expected = act()
+    # Training moved the zero-initialised output layer: the actions are not trivially 0.
+    assert expected.abs().max() > 1e-4
+    jit = torch.jit.load(str(trained / "exported" / "policy.pt"))
+    torch.testing.assert_close(jit(obs), expected, rtol=1e-5, atol=1e-8)
+
+    import onnxruntime
+
+    session = onnxruntime.InferenceSession(str(trained / "exported" / "policy.onnx"))
+    name = session.get_inputs()[0].name  # rsl-rl exports a batch of one
+    onnx_actions = np.concatenate([session.run(None, {name: row[None]})[0] for row in obs.numpy()])
+    np.testing.assert_allclose(onnx_actions, expected.numpy(), rtol=1e-4, atol=1e-7)
+
+
+def test_play_evaluates_the_base_gait_without_opengl(tmp_path):
+    out = run(
+        "runners.play", "--base-gait", "--episodes", "3", "--max-steps", "20",
+        "--settle-steps", "5", "--video", str(tmp_path / "episode.mp4"),
+        "--json", str(tmp_path / "eval.json"),
+        env={"MUJOCO_GL": "disable"},
+    )  # fmt: skip
+    assert "no video: no OpenGL backend" in out
+    assert "| base gait | 3 |" in out
+    row = json.loads((tmp_path / "eval.json").read_text())[0]
+    assert row["episodes"] == 3 and 0.0 <= row["fall_rate"] <= 1.0
+    assert not (tmp_path / "episode.mp4").exists()
+
+
+def test_play_pairs_the_policy_with_the_base_gait(trained):
+    out = run(
+        "runners.play", "--checkpoint", str(trained / "model_1.pt"), "--base-gait",
+        "--episodes", "2", "--max-steps", "15", "--settle-steps", "3",
+    )  # fmt: skip
+    assert "| base gait | 2 |" in out and "| policy model_1.pt | 2 |" in out
+
+
+def _gl_works() -> bool:
+    probe = (
+        "from rwalk.render import gl_available; import sys; sys.exit(0 if gl_available()[0] else 1)"
+    )
+    gl = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "osmesa")}  # as play.py
+    done = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, env=gl, check=False)
+    return done.returncode == 0
+
+
+@pytest.mark.skipif(not _gl_works(), reason="no OpenGL backend (apt-get install libosmesa6)")
+def test_play_films_an_episode(tmp_path):
+    video = tmp_path / "episode.gif"
+    run(
+        "runners.play", "--base-gait", "--episodes", "1", "--max-steps", "20",
+        "--settle-steps", "2", "--video", str(video), "--video-seconds", "0.2",
+    )  # fmt: skip
+    import imageio.v3 as iio
+
+    frames = iio.imread(video)
+    assert frames.shape[0] >= 4 and frames.shape[-1] in (3, 4)
+    assert frames.std() > 5  # not a blank image
+
+
+def test_train_torchrl_runs_two_iterations(tmp_path):
+    out = run(
+        "runners.train_torchrl", "--num-envs", "8", "--iterations", "2", "--steps-per-env", "8",
+        "--minibatch-size", "32", "--settle-steps", "2", "--log-dir", str(tmp_path),
+    )  # fmt: skip
+    assert "[torchrl] iteration 2/2" in out
+    saved = torch.load(tmp_path / "torchrl_2.pt", weights_only=False)
+    assert saved["iteration"] == 2 and "actor" in saved
+
+
+def test_walk_demo_prints_the_speed():
+    out = run("runners.walk_demo", "--envs", "2", "--seconds", "1")
+    assert "forward speed" in out and "expected 0.1333" in out
