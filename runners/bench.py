@@ -7,9 +7,10 @@
 Modes, all on world_train with the training defaults, the same N, threads and
 10 substeps per env step:
 
-  a  raw mujoco.rollout (persistent pool, preallocated outputs, skip_checks) replaying
-     the base gait's servo targets, states carried in numpy: the physics floor
   b  ResidualWalkVecEnv.step_and_maybe_reset with random actions, resets included
+  a  right after b, in the same process: raw mujoco.rollout (persistent pool,
+     preallocated outputs, skip_checks) on b's robots, from b's states, with the same
+     random-residual workload and the servo targets precomputed: the physics floor
   c  rsl-rl's collection loop: PPO.act + RslRlVecEnv.step + PPO.process_env_step
   d  gymnasium SyncVectorEnv (1 process) and AsyncVectorEnv (one worker process per
      core) over the single-env ResidualWalkEnv
@@ -40,10 +41,11 @@ QUICK_SIZES = (16, 1024)
 GYM_SYNC_SIZES = (1, 16)
 
 
-def _config(threads: int):
+def _config(threads: int, n: int):
+    """The training defaults for n envs on the given number of threads."""
     from runners.train import Args, env_config
 
-    return env_config(dataclasses.replace(Args(), threads=threads))
+    return env_config(dataclasses.replace(Args(), threads=threads, num_envs=n))
 
 
 def _peak_rss_mb() -> float:
@@ -51,53 +53,59 @@ def _peak_rss_mb() -> float:
 
 
 def _timed(step, window: float, min_steps: int = 3) -> tuple[int, float]:
-    """Call step() until window seconds and min_steps have passed; (calls, seconds)."""
-    calls, start = 0, time.perf_counter()
+    """Call step() until window seconds and min_steps have passed; (calls, seconds).
+
+    step() may return the seconds of its own work that count (None: all of it)."""
+    calls, counted, start = 0, 0.0, time.perf_counter()
     while True:
-        step()
+        t0 = time.perf_counter()
+        own = step()
+        counted += own if own is not None else time.perf_counter() - t0
         calls += 1
-        elapsed = time.perf_counter() - start
-        if elapsed >= window and calls >= min_steps:
-            return calls, elapsed
+        if time.perf_counter() - start >= window and calls >= min_steps:
+            return calls, counted
 
 
-def measure_raw(n: int, threads: int, window: float) -> dict:
+def measure_raw(core, threads: int, window: float, gen: torch.Generator) -> dict:
+    """The floor: plain mujoco.rollout on the same robots and workload as the env.
+
+    Starts from the env's current states and applies the base gait plus uniform random
+    residuals drawn from the env's own random stream: the same physics, without the
+    env. The servo targets are computed outside the timed region (a fixed control
+    sequence); only the rollout calls and the state copy are timed. mujoco.rollout
+    cannot carry the solver warmstart, so each call starts it at zero."""
     import mujoco
     from mujoco import rollout
 
-    from rwalk.core import ResidualWalkCore
-
-    config = dataclasses.replace(_config(threads), settle_steps=0, settle_pool=0)
-    core = ResidualWalkCore(config, n, seed=0)
-    core.reset()
-    model, k = core.model, config.decimation
+    n, model, k = core.num_envs, core.model, core.config.decimation
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     data = mujoco.MjData(model)
     state = np.empty((n, mujoco.mj_stateSize(model, spec)))
     for i in range(n):
         core.sim.batch.get_data(i, data)
         mujoco.mj_getState(model, data, state[i], spec)
-    cycle = core._base_gait_ctrl(core.controller.period + k)
     nthread = threads or os.cpu_count() or 1
     pool = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
     datas = [mujoco.MjData(model) for _ in range(max(nthread, 1))]
     models = [model] * n
     out_state = np.empty((n, k, state.shape[1]))
     out_sensors = np.empty((n, k, model.nsensordata))
-    tick = [0]
+    tick = core.tick.clone()
+    scale = core.config.residual_scale
 
-    def step() -> None:
-        t = tick[0]
-        ctrl = np.ascontiguousarray(np.broadcast_to(cycle[t : t + k], (n, k, model.nu)))
+    def step() -> float:
+        residuals = (torch.rand(n, 12, generator=gen) * 2 - 1).double().view(n, 4, 3) * scale
+        ctrl = core.controller.joint_targets(tick, k, residuals)[0].numpy()
+        tick.add_(k).remainder_(core.controller.period)
+        t0 = time.perf_counter()
         pool.rollout(
             models, datas if nthread > 1 else datas[:1], state, ctrl,
             state=out_state, sensordata=out_sensors, skip_checks=True, nstep=k,
         )  # fmt: skip
         state[:] = out_state[:, -1]
-        tick[0] = (t + k) % core.controller.period
+        return time.perf_counter() - t0
 
-    for _ in range(2):
-        step()
+    step()
     calls, seconds = _timed(step, window)
     return {
         "env_steps_per_s": calls * n / seconds,
@@ -130,18 +138,27 @@ def _time_rollouts(core) -> list[float]:
 
 
 def _run_steps(core, step, n: int, window: float) -> dict:
-    """Time step() with steady-state resets; report throughput and where time went."""
+    """Time step() with steady-state resets; report throughput and where time went.
+
+    Pool refills are rare and large, so besides the settle share inside the window
+    this reports the amortized one: each reset charged settle_steps x decimation /
+    settle_reuse substeps, what it costs over many refills."""
     in_mujoco = _time_rollouts(core)
-    step()
-    before = dict(core.physics_steps)
+    step()  # the first partial resets fill the pool
+    before, resets = dict(core.physics_steps), core.resets
     in_mujoco[0] = 0.0
     calls, seconds = _timed(step, window)
     physics = {key: core.physics_steps[key] - before[key] for key in before}
     total = physics["step"] + physics["settle"]
+    cfg = core.config
+    per_reset = cfg.settle_steps * cfg.decimation / (cfg.settle_reuse if cfg.settle_pool else 1)
+    amortized = (core.resets - resets) * per_reset
     return {
         "env_steps_per_s": calls * n / seconds,
         "physics_steps_per_s": total / seconds,
         "settle_share": physics["settle"] / total,
+        "settle_share_amortized": amortized / (physics["step"] + amortized),
+        "resets_per_step": (core.resets - resets) / calls,
         "time_in_mujoco": in_mujoco[0] / seconds,
     }
 
@@ -150,7 +167,7 @@ def measure_env(n: int, threads: int, window: float) -> dict:
     from rwalk import ResidualWalkVecEnv
 
     started = time.perf_counter()
-    env = ResidualWalkVecEnv(n, _config(threads), seed=0)
+    env = ResidualWalkVecEnv(n, _config(threads, n), seed=0)
     td = env.reset()
     reset_seconds = time.perf_counter() - started
     reset_settle = env.core.physics_steps["settle"]
@@ -165,7 +182,9 @@ def measure_env(n: int, threads: int, window: float) -> dict:
     result = _run_steps(env.core, step, n, window)
     result["first_reset_seconds_per_env"] = reset_seconds / n
     result["first_reset_substeps_per_env"] = reset_settle / n
-    return result
+    result["peak_rss_mb"] = _peak_rss_mb()  # before the floor allocates its buffers
+    floor = measure_raw(env.core, threads, window, gen)
+    return {"b": result, "a": floor}
 
 
 def measure_rsl_rl(n: int, threads: int, window: float) -> dict:
@@ -205,7 +224,7 @@ class _SpreadEpisodes:
     def __call__(self):
         from rwalk import ResidualWalkEnv
 
-        config = dataclasses.replace(_config(1), settle_pool=0)
+        config = dataclasses.replace(_config(1, 1), settle_pool=0)
         env = ResidualWalkEnv(config=config, seed=self.index)
         original_reset, offset = env.reset, [self.offset]
 
@@ -222,12 +241,12 @@ class _SpreadEpisodes:
 def measure_gym(n: int, processes: int, window: float) -> dict:
     import gymnasium
 
-    config = dataclasses.replace(_config(1), settle_pool=0)
+    config = dataclasses.replace(_config(1, 1), settle_pool=0)
     gen = np.random.default_rng(0)
     offsets = gen.integers(0, config.max_episode_steps, n)
     makers = [_SpreadEpisodes(i, int(offsets[i])) for i in range(n)]
     if processes > 1:
-        vec = gymnasium.vector.AsyncVectorEnv(makers, context="fork")
+        vec = gymnasium.vector.AsyncVectorEnv(makers, context="spawn")  # fork deadlocks OpenMP
     else:
         vec = gymnasium.vector.SyncVectorEnv(makers)
     vec.reset(seed=0)
@@ -251,10 +270,12 @@ def measure_gym(n: int, processes: int, window: float) -> dict:
         "env_steps_per_s": calls * n / seconds,
         "physics_steps_per_s": total / seconds,
         "settle_share": settle_physics / total,
+        "settle_share_amortized": settle_physics / total,
+        "resets_per_step": resets[0] / calls,
     }
 
 
-MEASURES = {"a": measure_raw, "b": measure_env, "c": measure_rsl_rl, "d": measure_gym}
+MEASURES = {"b": measure_env, "c": measure_rsl_rl, "d": measure_gym}
 LABELS = {
     "a": "raw mujoco.rollout (floor)",
     "b": "ResidualWalkVecEnv",
@@ -264,18 +285,23 @@ LABELS = {
 
 
 def worker(mode: str, n: int, threads: int, window: float) -> None:
-    """Measure one configuration and print its result as one JSON line."""
+    """Measure one configuration; print each result row as a JSON line.
+
+    Mode b also measures the floor (a) right after, on the same robots."""
     torch.set_num_threads(max(threads, 1) if threads else os.cpu_count() or 1)
     result = MEASURES[mode](n, threads, window)
-    result.update(mode=mode, n=n, threads=threads, peak_rss_mb=_peak_rss_mb())
-    print("RESULT " + json.dumps(result), flush=True)
+    rows = result if mode == "b" else {mode: result}
+    for key, row in rows.items():
+        row.setdefault("peak_rss_mb", _peak_rss_mb())
+        row.update(mode=key, n=n, threads=threads)
+        print("RESULT " + json.dumps(row), flush=True)
 
 
 def plan(quick: bool) -> list[tuple[str, int, int]]:
     cores = os.cpu_count() or 1
     sizes = QUICK_SIZES if quick else SIZES
     thread_counts = sorted({1, cores})
-    runs = [(mode, n, t) for n in sizes for t in thread_counts for mode in "abc"]
+    runs = [(mode, n, t) for n in sizes for t in thread_counts for mode in "bc"]
     runs += [("d", n, 1) for n in (GYM_SYNC_SIZES[-1:] if quick else GYM_SYNC_SIZES)]
     if cores > 1:
         runs.append(("d", cores, cores))  # AsyncVectorEnv: one worker process per core
@@ -291,8 +317,8 @@ def _ratio_rows(results: list[dict]) -> None:
 
 def table(results: list[dict]) -> str:
     lines = [
-        "| mode | N | threads | env steps/s | physics steps/s | ratio to (a) | settle share "
-        "| time in MuJoCo | peak RSS (MB) |",
+        "| mode | N | threads | env steps/s | physics steps/s | ratio to (a) "
+        "| settle share (window / amortized) | time in MuJoCo | peak RSS (MB) |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in sorted(results, key=lambda r: (r["mode"], r["n"], r["threads"])):
@@ -301,7 +327,8 @@ def table(results: list[dict]) -> str:
         lines.append(
             f"| {r['mode']} {LABELS[r['mode']]} | {r['n']} | {r['threads']} | "
             f"{r['env_steps_per_s']:,.0f} | {r['physics_steps_per_s']:,.0f} | {ratio} | "
-            f"{r['settle_share']:.1%} | {mujoco_share} | {r['peak_rss_mb']:,.0f} |"
+            f"{r['settle_share']:.1%} / {r.get('settle_share_amortized', 0.0):.1%} | "
+            f"{mujoco_share} | {r['peak_rss_mb']:,.0f} |"
         )
     return "\n".join(lines)
 
@@ -315,9 +342,10 @@ def summary(results: list[dict]) -> list[str]:
         if (mode, n, t) in by:
             ratio = by[(mode, n, t)]["ratio_to_floor"]
             out.append(f"({mode})/(a) physics steps/s at N={n}, {t} thread(s): {ratio:.3f}")
-    best_b = max((r for r in results if r["mode"] == "b"), key=lambda r: r["env_steps_per_s"])
+    batched = [r for r in results if r["mode"] == "b"]
     gyms = [r for r in results if r["mode"] == "d"]
-    if gyms:
+    if batched and gyms:
+        best_b = max(batched, key=lambda r: r["env_steps_per_s"])
         best_d = max(gyms, key=lambda r: r["env_steps_per_s"])
         out.append(
             f"best (b) {best_b['env_steps_per_s']:,.0f} env steps/s (N={best_b['n']}) vs best (d) "
@@ -341,8 +369,8 @@ def summary(results: list[dict]) -> list[str]:
         r = by[("b", 4096, cores)]
         out.append(
             f"training defaults at N=4096: {r['env_steps_per_s']:,.0f} env steps/s, settle share "
-            f"{r['settle_share']:.1%}; first reset "
-            f"{r['first_reset_seconds_per_env'] * 1e3:.1f} ms per env"
+            f"{r['settle_share']:.1%} in the window, {r['settle_share_amortized']:.1%} amortized; "
+            f"first reset {r['first_reset_seconds_per_env'] * 1e3:.1f} ms per env"
         )
     return out
 
@@ -387,18 +415,19 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--seconds", type=float, help="timing window per measurement")
     parser.add_argument("--json", type=Path, help="save the results here")
     parser.add_argument("--plot", type=Path, help="save a throughput-vs-N PNG here")
-    parser.add_argument("--only", help="measure one 'mode,N,threads' (e.g. b,1024,2)")
+    parser.add_argument(
+        "--only", action="append", help="measure only 'mode,N,threads' (repeatable, e.g. b,1024,2)"
+    )
     parser.add_argument("--worker", nargs=4, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worker:
         mode, n, threads, window = args.worker
         worker(mode, int(n), int(threads), float(window))
         return []
-    window = args.seconds or (2.0 if args.quick else 6.0)
+    window = args.seconds or (2.0 if args.quick else 8.0)
     runs = plan(args.quick)
     if args.only:
-        mode, n, threads = args.only.split(",")
-        runs = [(mode, int(n), int(threads))]
+        runs = [(m, int(n), int(t)) for m, n, t in (item.split(",") for item in args.only)]
     results = []
     started = time.perf_counter()
     for i, (mode, n, threads) in enumerate(runs, 1):
@@ -422,12 +451,15 @@ def main(argv: list[str] | None = None) -> list[dict]:
         if done.returncode != 0 or not lines:
             print(f"failed:\n{done.stderr[-2000:]}")
             continue
-        result = json.loads(lines[-1][len("RESULT ") :])
-        results.append(result)
+        rows = [json.loads(line[len("RESULT ") :]) for line in lines]
+        results.extend(rows)
         print(
-            f"{result['env_steps_per_s']:,.0f} env steps/s, "
-            f"{result['physics_steps_per_s']:,.0f} physics steps/s "
-            f"({time.perf_counter() - started:.0f} s elapsed)",
+            ", ".join(
+                f"({r['mode']}) {r['env_steps_per_s']:,.0f} env steps/s "
+                f"{r['physics_steps_per_s']:,.0f} physics steps/s"
+                for r in rows
+            )
+            + f" ({time.perf_counter() - started:.0f} s elapsed)",
             flush=True,
         )
     _ratio_rows(results)

@@ -47,7 +47,9 @@ class Args:
     save_interval: int = field(default=25, metadata={"help": "iterations between checkpoints"})
     num_steps_per_env: int = field(default=24, metadata={"help": "rollout length per iteration"})
     settle_steps: int = field(default=100, metadata={"help": "zero-residual steps at each start"})
-    settle_pool: int = field(default=256, metadata={"help": "settled starts kept ready"})
+    settle_pool_fraction: float = field(
+        default=0.25, metadata={"help": "settled starts kept ready, as a fraction of num_envs"}
+    )
     settle_reuse: int = field(default=4, metadata={"help": "resets served by each pooled start"})
     max_episode_steps: int = field(default=1000, metadata={"help": "episode length (50 Hz)"})
     reward_scale: float = field(default=1e-3, metadata={"help": "reward multiplier seen by PPO"})
@@ -79,7 +81,7 @@ def env_config(args: Args) -> EnvConfig:
         randomize=True,
         position_noise=(0.5, 1.2),
         settle_steps=args.settle_steps,
-        settle_pool=args.settle_pool,
+        settle_pool=max(1, round(args.settle_pool_fraction * args.num_envs)),
         settle_reuse=args.settle_reuse,
         max_episode_steps=args.max_episode_steps,
         num_threads=args.threads,

@@ -118,6 +118,8 @@ class ResidualWalkCore:
         self._pool = _StartPool(self, config.settle_pool) if config.settle_pool else None
         self.physics_steps = {"step": 0, "settle": 0}
         """Physics substeps run so far: stepping the envs, and settling starts."""
+        self.resets = 0
+        """Env resets so far (each start an env received)."""
         self._started = False
         self.seed(seed)
 
@@ -171,6 +173,7 @@ class ResidualWalkCore:
         self.y0[rows] = self.obs[rows, OBS_POS.start + 1]
         for total in (*self.episode_sums.values(), self.episode_distance):
             total[rows] = 0.0
+        self.resets += ids.size
         if ids.size == self.num_envs:
             self._started = True
 
@@ -346,6 +349,12 @@ class ResidualWalkCore:
         """(sin 2πφ, cos 2πφ) of the gait phase. Shape: (N, 2)."""
         angle = 2.0 * math.pi * self.phase
         return torch.stack((torch.sin(angle), torch.cos(angle)), dim=-1)
+
+    @property
+    def settle_share(self) -> float:
+        """Fraction of all physics substeps so far spent settling starts."""
+        total = self.physics_steps["step"] + self.physics_steps["settle"]
+        return self.physics_steps["settle"] / total if total else 0.0
 
     def episode_log(self, env_ids: Tensor) -> dict[str, Tensor]:
         """Per-env statistics of the episodes ending in ``env_ids`` (call before reset).

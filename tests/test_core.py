@@ -33,6 +33,8 @@ def test_physics_steps_are_counted():
     core.step(torch.zeros(3, 12))
     core.reset(np.array([1]))
     assert core.physics_steps == {"step": 3 * 10, "settle": 4 * 10 * 10}
+    assert core.resets == 4
+    assert core.settle_share == pytest.approx(400 / 430)
 
 
 def test_pooled_resets_return_settled_starts_and_refill_in_one_batch():

@@ -53,6 +53,7 @@ def test_auto_reset_and_episode_log():
         "Episode/fall_rate",
         "Episode/forward_velocity",
         "Episode/velocity_error",
+        "Perf/settle_share",
     } <= set(log)
     assert log["Episode/length"].item() == 12 and log["Episode/fall_rate"].item() == 0
 

@@ -26,7 +26,8 @@ class RslRlVecEnv(VecEnv):
     ``extras["log"]`` (means over the episodes that ended this step):
     ``Episode_Reward/<term>`` (per-step mean of each reward term),
     ``Episode/length``, ``Episode/fall_rate``, ``Episode/forward_velocity``,
-    ``Episode/velocity_error`` (|mean v_x - v*|) and ``Episode/diverged``.
+    ``Episode/velocity_error`` (|mean v_x - v*|), ``Episode/diverged``, and
+    ``Perf/settle_share`` (share of all physics so far spent settling starts).
 
     Args:
         env: the batched env (its core is stepped directly: no TensorDict per step).
@@ -110,4 +111,5 @@ class RslRlVecEnv(VecEnv):
         log["Episode/forward_velocity"] = velocity.mean()
         log["Episode/velocity_error"] = (velocity - self.core.config.expected_velocity).abs().mean()
         log["Episode/diverged"] = result.diverged[ids].double().mean()
+        log["Perf/settle_share"] = torch.tensor(self.core.settle_share)
         return log
