@@ -123,6 +123,11 @@ class ResidualWalkCore:
         self._started = False
         self.seed(seed)
 
+    @property
+    def started(self) -> bool:
+        """Whether every env has been reset at least once (step() needs it)."""
+        return self._started
+
     # ------------------------------------------------------------------ seeding
     def seed(self, seed: int | None) -> int:
         """Restart the start counter from ``seed``; returns the seed used."""

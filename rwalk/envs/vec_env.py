@@ -90,7 +90,7 @@ class ResidualWalkVecEnv(EnvBase):
     # ------------------------------------------------------------------ EnvBase
     def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
         mask = None if tensordict is None else tensordict.get("_reset", None)
-        if mask is None or not self.core._started:
+        if mask is None or not self.core.started:
             self.core.reset()
         else:
             self.core.reset(mask.reshape(-1))

@@ -58,7 +58,7 @@ class RslRlVecEnv(VecEnv):
         self.max_episode_length = env.config.max_episode_steps
         self.device = "cpu"
         self.cfg = dataclasses.asdict(env.config)
-        if not self.core._started:
+        if not self.core.started:
             self.core.reset()
 
     @property
