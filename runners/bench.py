@@ -8,17 +8,22 @@ Modes, all on world_train with the training defaults, the same N, threads and
 10 substeps per env step:
 
   b  ResidualWalkVecEnv.step_and_maybe_reset with random actions, resets included
-  a  right after b, in the same process: raw mujoco.rollout (persistent pool,
-     preallocated outputs, skip_checks) on b's robots, from b's states, with the same
-     random-residual workload and the servo targets precomputed: the physics floor
+  a  in the same process as b, timed in alternating rounds with it: raw
+     mujoco.rollout (persistent pool, preallocated outputs, skip_checks) on b's
+     robots, from b's states, with the same random-residual workload and the servo
+     targets precomputed: the physics floor
   c  rsl-rl's collection loop: PPO.act + RslRlVecEnv.step + PPO.process_env_step
   d  gymnasium SyncVectorEnv (1 process) and AsyncVectorEnv (one worker process per
      core) over the single-env ResidualWalkEnv
+  t  thread scaling: b and a on 1 thread and on all cores, all four in one process,
+     alternating
 
-Each measurement runs in a fresh subprocess (its own peak RSS). Episodes start
-spread over their length (like rsl-rl's init_at_random_ep_len), so resets happen
-at their long-run rate inside the timing window; every physics substep counts,
-settling included.
+Each measurement runs in a fresh subprocess (its own peak RSS). Ratios to the
+floor come from contenders timed in alternating rounds in one process (c, like b,
+has a floor of its own), so the machine's drift does not land on one side.
+Episodes start spread over their length (like rsl-rl's init_at_random_ep_len), so
+resets happen at their long-run rate inside the timing window; every physics
+substep counts, settling included.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ import torch
 
 SIZES = (1, 16, 256, 1024, 4096, 8192)
 QUICK_SIZES = (16, 1024)
+ROUNDS = 4
 GYM_SYNC_SIZES = (1, 16)
 
 
@@ -66,7 +72,7 @@ def _timed(step, window: float, min_steps: int = 3) -> tuple[int, float]:
             return calls, counted
 
 
-def measure_raw(core, threads: int, window: float, gen: torch.Generator) -> dict:
+class Floor:
     """The floor: plain mujoco.rollout on the same robots and workload as the env.
 
     Starts from the env's current states and applies the base gait plus uniform random
@@ -74,44 +80,40 @@ def measure_raw(core, threads: int, window: float, gen: torch.Generator) -> dict
     env. The servo targets are computed outside the timed region (a fixed control
     sequence); only the rollout calls and the state copy are timed. mujoco.rollout
     cannot carry the solver warmstart, so each call starts it at zero."""
-    import mujoco
-    from mujoco import rollout
 
-    n, model, k = core.num_envs, core.model, core.config.decimation
-    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    data = mujoco.MjData(model)
-    state = np.empty((n, mujoco.mj_stateSize(model, spec)))
-    for i in range(n):
-        core.sim.batch.get_data(i, data)
-        mujoco.mj_getState(model, data, state[i], spec)
-    nthread = threads or os.cpu_count() or 1
-    pool = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
-    datas = [mujoco.MjData(model) for _ in range(max(nthread, 1))]
-    models = [model] * n
-    out_state = np.empty((n, k, state.shape[1]))
-    out_sensors = np.empty((n, k, model.nsensordata))
-    tick = core.tick.clone()
-    scale = core.config.residual_scale
+    def __init__(self, core, threads: int, gen: torch.Generator) -> None:
+        import mujoco
+        from mujoco import rollout
 
-    def step() -> float:
-        residuals = (torch.rand(n, 12, generator=gen) * 2 - 1).double().view(n, 4, 3) * scale
-        ctrl = core.controller.joint_targets(tick, k, residuals)[0].numpy()
-        tick.add_(k).remainder_(core.controller.period)
+        self.n, self.k, self.model = core.num_envs, core.config.decimation, core.model
+        self.core, self.gen = core, gen
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        data = mujoco.MjData(self.model)
+        self.state = np.empty((self.n, mujoco.mj_stateSize(self.model, spec)))
+        for i in range(self.n):
+            core.sim.batch.get_data(i, data)
+            mujoco.mj_getState(self.model, data, self.state[i], spec)
+        nthread = threads or os.cpu_count() or 1
+        self.pool = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
+        self.datas = [mujoco.MjData(self.model) for _ in range(nthread)]
+        self.models = [self.model] * self.n
+        self.out_state = np.empty((self.n, self.k, self.state.shape[1]))
+        self.out_sensors = np.empty((self.n, self.k, self.model.nsensordata))
+        self.tick = core.tick.clone()
+
+    def step(self) -> float:
+        core, n, k = self.core, self.n, self.k
+        residuals = torch.rand(n, 12, generator=self.gen) * 2 - 1
+        residuals = residuals.double().view(n, 4, 3) * core.config.residual_scale
+        ctrl = core.controller.joint_targets(self.tick, k, residuals)[0].numpy()
+        self.tick.add_(k).remainder_(core.controller.period)
         t0 = time.perf_counter()
-        pool.rollout(
-            models, datas if nthread > 1 else datas[:1], state, ctrl,
-            state=out_state, sensordata=out_sensors, skip_checks=True, nstep=k,
+        self.pool.rollout(
+            self.models, self.datas, self.state, ctrl, state=self.out_state,
+            sensordata=self.out_sensors, skip_checks=True, nstep=k,
         )  # fmt: skip
-        state[:] = out_state[:, -1]
+        self.state[:] = self.out_state[:, -1]
         return time.perf_counter() - t0
-
-    step()
-    calls, seconds = _timed(step, window)
-    return {
-        "env_steps_per_s": calls * n / seconds,
-        "physics_steps_per_s": calls * n * k / seconds,
-        "settle_share": 0.0,
-    }
 
 
 def _spread_episodes(core, generator: torch.Generator) -> None:
@@ -137,54 +139,123 @@ def _time_rollouts(core) -> list[float]:
     return total
 
 
-def _run_steps(core, step, n: int, window: float) -> dict:
-    """Time step() with steady-state resets; report throughput and where time went.
+class EnvMeter:
+    """What the core did while its steps were timed: throughput, settling, time in MuJoCo.
 
-    Pool refills are rare and large, so besides the settle share inside the window
-    this reports the amortized one: each reset charged settle_steps x decimation /
-    settle_reuse substeps, what it costs over many refills."""
-    in_mujoco = _time_rollouts(core)
-    step()  # the first partial resets fill the pool
-    before, resets = dict(core.physics_steps), core.resets
-    in_mujoco[0] = 0.0
-    calls, seconds = _timed(step, window)
-    physics = {key: core.physics_steps[key] - before[key] for key in before}
-    total = physics["step"] + physics["settle"]
-    cfg = core.config
-    per_reset = cfg.settle_steps * cfg.decimation / (cfg.settle_reuse if cfg.settle_pool else 1)
-    amortized = (core.resets - resets) * per_reset
+    Pool refills are rare and large, so besides the settle share inside the timed
+    windows this reports the amortized one: each reset charged settle_steps x
+    decimation / settle_reuse substeps, what it costs over many refills."""
+
+    def __init__(self, core) -> None:
+        self.core = core
+        self.in_mujoco = _time_rollouts(core)
+        self.before, self.resets = dict(core.physics_steps), core.resets
+        self.in_mujoco[0] = 0.0
+
+    def result(self, calls: int, seconds: float) -> dict:
+        core, cfg = self.core, self.core.config
+        physics = {key: core.physics_steps[key] - self.before[key] for key in self.before}
+        total = physics["step"] + physics["settle"]
+        per_reset = cfg.settle_steps * cfg.decimation / (cfg.settle_reuse if cfg.settle_pool else 1)
+        resets = core.resets - self.resets
+        amortized = resets * per_reset
+        return {
+            "env_steps_per_s": calls * core.num_envs / seconds,
+            "physics_steps_per_s": total / seconds,
+            "settle_share": physics["settle"] / total,
+            "settle_share_amortized": amortized / (physics["step"] + amortized),
+            "resets_per_step": resets / calls,
+            "time_in_mujoco": self.in_mujoco[0] / seconds,
+        }
+
+
+def _interleaved(steps: dict, window: float, rounds: int = ROUNDS) -> dict[str, tuple]:
+    """Time each step() for window / rounds seconds in turn, rounds times over.
+
+    Alternating spreads the machine's drifts and noise evenly over the contenders,
+    so their ratios hold even where absolute figures wander. Returns key -> (calls,
+    seconds) summed over the rounds."""
+    totals = {key: (0, 0.0) for key in steps}
+    for _ in range(rounds):
+        for key, step in steps.items():
+            calls, seconds = _timed(step, window / rounds)
+            totals[key] = (totals[key][0] + calls, totals[key][1] + seconds)
+    return totals
+
+
+def _floor_result(floor: Floor, calls: int, seconds: float) -> dict:
     return {
-        "env_steps_per_s": calls * n / seconds,
-        "physics_steps_per_s": total / seconds,
-        "settle_share": physics["settle"] / total,
-        "settle_share_amortized": amortized / (physics["step"] + amortized),
-        "resets_per_step": (core.resets - resets) / calls,
-        "time_in_mujoco": in_mujoco[0] / seconds,
+        "env_steps_per_s": calls * floor.n / seconds,
+        "physics_steps_per_s": calls * floor.n * floor.k / seconds,
+        "settle_share": 0.0,
     }
 
 
-def measure_env(n: int, threads: int, window: float) -> dict:
+def _env_stepper(n: int, threads: int, gen: torch.Generator):
+    """A ResidualWalkVecEnv with the training defaults, episodes spread, and its step()."""
     from rwalk import ResidualWalkVecEnv
 
     started = time.perf_counter()
     env = ResidualWalkVecEnv(n, _config(threads, n), seed=0)
     td = env.reset()
-    reset_seconds = time.perf_counter() - started
-    reset_settle = env.core.physics_steps["settle"]
-    gen = torch.Generator().manual_seed(0)
+    first_reset = {
+        "first_reset_seconds_per_env": (time.perf_counter() - started) / n,
+        "first_reset_substeps_per_env": env.core.physics_steps["settle"] / n,
+    }
     _spread_episodes(env.core, gen)
+    torch_threads = threads or os.cpu_count() or 1
 
     def step() -> None:
         nonlocal td
+        torch.set_num_threads(torch_threads)
         td.set("action", torch.rand(n, 12, generator=gen) * 2 - 1)
         _, td = env.step_and_maybe_reset(td)
 
-    result = _run_steps(env.core, step, n, window)
-    result["first_reset_seconds_per_env"] = reset_seconds / n
-    result["first_reset_substeps_per_env"] = reset_settle / n
-    result["peak_rss_mb"] = _peak_rss_mb()  # before the floor allocates its buffers
-    floor = measure_raw(env.core, threads, window, gen)
-    return {"b": result, "a": floor}
+    step()  # the first partial resets fill the pool
+    return env, step, first_reset
+
+
+def measure_env(n: int, threads: int, window: float) -> dict:
+    """(b) and its floor (a) on the same robots, timed in alternating rounds."""
+    gen = torch.Generator().manual_seed(0)
+    env, step, first_reset = _env_stepper(n, threads, gen)
+    _timed(step, window / ROUNDS)  # a first round before the floor allocates its buffers
+    peak_rss = _peak_rss_mb()
+    meter = EnvMeter(env.core)
+    floor = Floor(env.core, threads, gen)
+    timed = _interleaved({"b": step, "a": floor.step}, window)
+    b = meter.result(*timed["b"]) | first_reset | {"peak_rss_mb": peak_rss}
+    a = _floor_result(floor, *timed["a"])
+    b["floor_physics_steps_per_s"] = a["physics_steps_per_s"]
+    return {"b": b, "a": a}
+
+
+def measure_scaling(n: int, threads: int, window: float) -> dict:
+    """(b) and (a) on 1 thread and on ``threads``, all four in one process, alternating."""
+    gen = torch.Generator().manual_seed(0)
+    steps, meters, floors = {}, {}, {}
+    for t in (1, threads):
+        env, steps[f"b{t}"], _ = _env_stepper(n, t, gen)
+        meters[t] = EnvMeter(env.core)
+        floors[t] = Floor(env.core, t, gen)
+        steps[f"a{t}"] = floors[t].step
+    timed = _interleaved(steps, window)
+    rows = {}
+    for t in (1, threads):
+        rows[f"b{t}"] = meters[t].result(*timed[f"b{t}"]) | {"threads": t}
+        rows[f"a{t}"] = _floor_result(floors[t], *timed[f"a{t}"]) | {"threads": t}
+    one, many = rows["b1"], rows[f"b{threads}"]
+    return {
+        "t": {
+            "env_steps_per_s": many["env_steps_per_s"],
+            "physics_steps_per_s": many["physics_steps_per_s"],
+            "settle_share": many["settle_share"],
+            "env_speedup": many["env_steps_per_s"] / one["env_steps_per_s"],
+            "floor_speedup": rows[f"a{threads}"]["physics_steps_per_s"]
+            / rows["a1"]["physics_steps_per_s"],
+            "pairs": rows,
+        }
+    }
 
 
 def measure_rsl_rl(n: int, threads: int, window: float) -> dict:
@@ -211,7 +282,15 @@ def measure_rsl_rl(n: int, threads: int, window: float) -> dict:
             alg.storage.clear()
             filled[0] = 0
 
-    return _run_steps(env.core, step, n, window)
+    step()  # the first partial resets fill the pool
+    _timed(step, window / ROUNDS)
+    peak_rss = _peak_rss_mb()
+    meter = EnvMeter(env.core)
+    floor = Floor(env.core, threads, torch.Generator().manual_seed(1))
+    timed = _interleaved({"c": step, "a": floor.step}, window)
+    c = meter.result(*timed["c"]) | {"peak_rss_mb": peak_rss}
+    c["floor_physics_steps_per_s"] = _floor_result(floor, *timed["a"])["physics_steps_per_s"]
+    return {"c": c}
 
 
 class _SpreadEpisodes:
@@ -267,20 +346,23 @@ def measure_gym(n: int, processes: int, window: float) -> dict:
     settle_physics = resets[0] * config.settle_steps * k
     total = step_physics + settle_physics
     return {
-        "env_steps_per_s": calls * n / seconds,
-        "physics_steps_per_s": total / seconds,
-        "settle_share": settle_physics / total,
-        "settle_share_amortized": settle_physics / total,
-        "resets_per_step": resets[0] / calls,
+        "d": {
+            "env_steps_per_s": calls * n / seconds,
+            "physics_steps_per_s": total / seconds,
+            "settle_share": settle_physics / total,
+            "settle_share_amortized": settle_physics / total,
+            "resets_per_step": resets[0] / calls,
+        }
     }
 
 
-MEASURES = {"b": measure_env, "c": measure_rsl_rl, "d": measure_gym}
+MEASURES = {"b": measure_env, "c": measure_rsl_rl, "d": measure_gym, "t": measure_scaling}
 LABELS = {
     "a": "raw mujoco.rollout (floor)",
     "b": "ResidualWalkVecEnv",
     "c": "rsl-rl collection",
     "d": "gymnasium vector env",
+    "t": "ResidualWalkVecEnv, thread scaling",
 }
 
 
@@ -289,11 +371,11 @@ def worker(mode: str, n: int, threads: int, window: float) -> None:
 
     Mode b also measures the floor (a) right after, on the same robots."""
     torch.set_num_threads(max(threads, 1) if threads else os.cpu_count() or 1)
-    result = MEASURES[mode](n, threads, window)
-    rows = result if mode == "b" else {mode: result}
+    rows = MEASURES[mode](n, threads, window)
     for key, row in rows.items():
         row.setdefault("peak_rss_mb", _peak_rss_mb())
-        row.update(mode=key, n=n, threads=threads)
+        row.setdefault("threads", threads)
+        row.update(mode=key, n=n)
         print("RESULT " + json.dumps(row), flush=True)
 
 
@@ -305,23 +387,27 @@ def plan(quick: bool) -> list[tuple[str, int, int]]:
     runs += [("d", n, 1) for n in (GYM_SYNC_SIZES[-1:] if quick else GYM_SYNC_SIZES)]
     if cores > 1:
         runs.append(("d", cores, cores))  # AsyncVectorEnv: one worker process per core
+        runs.append(("t", QUICK_SIZES[-1] if quick else 4096, cores))
     return runs
 
 
 def _ratio_rows(results: list[dict]) -> None:
     floor = {(r["n"], r["threads"]): r["physics_steps_per_s"] for r in results if r["mode"] == "a"}
     for r in results:
-        base = floor.get((r["n"], r["threads"]))
+        if r["mode"] == "t":
+            continue
+        base = r.get("floor_physics_steps_per_s") or floor.get((r["n"], r["threads"]))
         r["ratio_to_floor"] = r["physics_steps_per_s"] / base if base else None
 
 
 def table(results: list[dict]) -> str:
     lines = [
-        "| mode | N | threads | env steps/s | physics steps/s | ratio to (a) "
+        "| mode | N | threads | env steps/s | physics steps/s | ratio to its (a) "
         "| settle share (window / amortized) | time in MuJoCo | peak RSS (MB) |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
-    for r in sorted(results, key=lambda r: (r["mode"], r["n"], r["threads"])):
+    rows = (r for r in results if r["mode"] != "t")
+    for r in sorted(rows, key=lambda r: (r["mode"], r["n"], r["threads"])):
         ratio = f"{r['ratio_to_floor']:.3f}" if r.get("ratio_to_floor") else "—"
         mujoco_share = f"{r['time_in_mujoco']:.1%}" if "time_in_mujoco" in r else "—"
         lines.append(
@@ -362,9 +448,12 @@ def summary(results: list[dict]) -> list[str]:
         small, large = by[("b", 256, cores)], by[("b", 4096, cores)]
         per_env = (large["peak_rss_mb"] - small["peak_rss_mb"]) * 1024 / (4096 - 256)
         out.append(f"memory per additional env (N=4096 vs 256): {per_env:.1f} KB")
-    if ("b", 4096, 1) in by and ("b", 4096, cores) in by and cores > 1:
-        scale = by[("b", 4096, cores)]["env_steps_per_s"] / by[("b", 4096, 1)]["env_steps_per_s"]
-        out.append(f"(b) {cores} threads vs 1 at N=4096: {scale:.2f}x")
+    for r in results:
+        if r["mode"] == "t":
+            out.append(
+                f"(b) {r['threads']} threads vs 1 at N={r['n']}, one process, alternating: "
+                f"{r['env_speedup']:.2f}x (raw mujoco.rollout: {r['floor_speedup']:.2f}x)"
+            )
     if ("b", 4096, cores) in by:
         r = by[("b", 4096, cores)]
         out.append(
