@@ -1,6 +1,6 @@
 """Throughput and memory of the env beside its physics floor, measured in one run.
 
-    python -m runners.bench                      # the full sweep (about 25 minutes on 2 cores)
+    python -m runners.bench                      # the full sweep (about 35 minutes on 2 cores)
     python -m runners.bench --quick              # N in {16, 1024}, short windows
     python -m runners.bench --json bench.json --plot docs/performance.png
 
