@@ -150,7 +150,6 @@ class EnvMeter:
         self.core = core
         self.in_mujoco = _time_rollouts(core)
         self.before, self.resets = dict(core.physics_steps), core.resets
-        self.in_mujoco[0] = 0.0
 
     def result(self, calls: int, seconds: float) -> dict:
         core, cfg = self.core, self.core.config
@@ -215,19 +214,28 @@ def _env_stepper(n: int, threads: int, gen: torch.Generator):
     return env, step, first_reset
 
 
+def _against_floor(core, step, threads: int, gen: torch.Generator, window: float):
+    """Time step() and a Floor on core's robots in alternating rounds; (row, floor row).
+
+    The row carries its floor's physics steps/s and the peak RSS before the floor
+    allocated its buffers."""
+    _timed(step, window / ROUNDS)  # a first round before the floor allocates its buffers
+    peak_rss = _peak_rss_mb()
+    meter = EnvMeter(core)
+    floor = Floor(core, threads, gen)
+    timed = _interleaved({"env": step, "a": floor.step}, window)
+    a = _floor_result(floor, *timed["a"])
+    row = meter.result(*timed["env"]) | {"peak_rss_mb": peak_rss}
+    row["floor_physics_steps_per_s"] = a["physics_steps_per_s"]
+    return row, a
+
+
 def measure_env(n: int, threads: int, window: float) -> dict:
     """(b) and its floor (a) on the same robots, timed in alternating rounds."""
     gen = torch.Generator().manual_seed(0)
     env, step, first_reset = _env_stepper(n, threads, gen)
-    _timed(step, window / ROUNDS)  # a first round before the floor allocates its buffers
-    peak_rss = _peak_rss_mb()
-    meter = EnvMeter(env.core)
-    floor = Floor(env.core, threads, gen)
-    timed = _interleaved({"b": step, "a": floor.step}, window)
-    b = meter.result(*timed["b"]) | first_reset | {"peak_rss_mb": peak_rss}
-    a = _floor_result(floor, *timed["a"])
-    b["floor_physics_steps_per_s"] = a["physics_steps_per_s"]
-    return {"b": b, "a": a}
+    b, a = _against_floor(env.core, step, threads, gen, window)
+    return {"b": b | first_reset, "a": a}
 
 
 def measure_scaling(n: int, threads: int, window: float) -> dict:
@@ -283,13 +291,7 @@ def measure_rsl_rl(n: int, threads: int, window: float) -> dict:
             filled[0] = 0
 
     step()  # the first partial resets fill the pool
-    _timed(step, window / ROUNDS)
-    peak_rss = _peak_rss_mb()
-    meter = EnvMeter(env.core)
-    floor = Floor(env.core, threads, torch.Generator().manual_seed(1))
-    timed = _interleaved({"c": step, "a": floor.step}, window)
-    c = meter.result(*timed["c"]) | {"peak_rss_mb": peak_rss}
-    c["floor_physics_steps_per_s"] = _floor_result(floor, *timed["a"])["physics_steps_per_s"]
+    c, _ = _against_floor(env.core, step, threads, torch.Generator().manual_seed(1), window)
     return {"c": c}
 
 
@@ -297,14 +299,13 @@ class _SpreadEpisodes:
     """Env factory for gymnasium vector envs: a single env whose first episode is
     already ``offset`` steps old, like the batched modes' spread episodes."""
 
-    def __init__(self, index: int, offset: int) -> None:
-        self.index, self.offset = index, offset
+    def __init__(self, config, index: int, offset: int) -> None:
+        self.config, self.index, self.offset = config, index, offset
 
     def __call__(self):
         from rwalk import ResidualWalkEnv
 
-        config = dataclasses.replace(_config(1, 1), settle_pool=0)
-        env = ResidualWalkEnv(config=config, seed=self.index)
+        env = ResidualWalkEnv(config=self.config, seed=self.index)
         original_reset, offset = env.reset, [self.offset]
 
         def reset(**kwargs):
@@ -323,7 +324,7 @@ def measure_gym(n: int, processes: int, window: float) -> dict:
     config = dataclasses.replace(_config(1, 1), settle_pool=0)
     gen = np.random.default_rng(0)
     offsets = gen.integers(0, config.max_episode_steps, n)
-    makers = [_SpreadEpisodes(i, int(offsets[i])) for i in range(n)]
+    makers = [_SpreadEpisodes(config, i, int(offsets[i])) for i in range(n)]
     if processes > 1:
         vec = gymnasium.vector.AsyncVectorEnv(makers, context="spawn")  # fork deadlocks OpenMP
     else:
