@@ -2,7 +2,7 @@
 
 import json
 
-from runners.bench import main, summary, table
+from rwalk.runners.bench import main, summary, table
 
 
 def test_bench_pairs_each_contender_with_its_floor(tmp_path):

@@ -4,7 +4,7 @@ CI does not run this: its figures depend on the machine and its load."""
 
 import pytest
 
-from runners.bench import main
+from rwalk.runners.bench import main
 
 
 @pytest.mark.slow

@@ -35,7 +35,7 @@ def run(*args: str, env: dict | None = None, timeout: int = 600) -> str:
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory) -> Path:
     log_dir = tmp_path_factory.mktemp("train")
-    out = run("runners.train", *TINY_TRAIN, "--max-iterations", "2", "--log-dir", str(log_dir))
+    out = run("rwalk.runners.train", *TINY_TRAIN, "--max-iterations", "2", "--log-dir", str(log_dir))
     assert "[rwalk] iteration 2/2" in out and "ETA" in out
     return log_dir
 
@@ -51,7 +51,7 @@ def test_train_writes_checkpoints_logs_config_and_exports(trained):
 
 
 def test_tensorboard_has_every_reward_term(trained):
-    from runners.plot_training import read_scalars
+    from rwalk.runners.plot_training import read_scalars
     from rwalk.rewards import TERM_NAMES
 
     tags = set(read_scalars(trained))
@@ -63,7 +63,7 @@ def test_tensorboard_has_every_reward_term(trained):
 
 def test_resume_continues_the_iteration_count(trained, tmp_path):
     out = run(
-        "runners.train", *TINY_TRAIN, "--max-iterations", "4", "--log-dir", str(tmp_path),
+        "rwalk.runners.train", *TINY_TRAIN, "--max-iterations", "4", "--log-dir", str(tmp_path),
         "--resume", str(trained / "model_1.pt"), "--no-export",
     )  # fmt: skip
     assert "next iteration 2" in out
@@ -72,7 +72,7 @@ def test_resume_continues_the_iteration_count(trained, tmp_path):
 
 
 def test_exported_policies_act_like_the_checkpoint(trained):
-    from runners.play import eval_config, load_policy
+    from rwalk.runners.play import eval_config, load_policy
     from rwalk import ResidualWalkVecEnv
     from rwalk.wrappers import RslRlVecEnv
 
@@ -96,7 +96,7 @@ def test_exported_policies_act_like_the_checkpoint(trained):
 
 def test_play_evaluates_the_base_gait_without_opengl(tmp_path):
     out = run(
-        "runners.play", "--base-gait", "--episodes", "3", "--max-steps", "20",
+        "rwalk.runners.play", "--base-gait", "--episodes", "3", "--max-steps", "20",
         "--settle-steps", "5", "--video", str(tmp_path / "episode.mp4"),
         "--json", str(tmp_path / "eval.json"),
         env={"MUJOCO_GL": "disable"},
@@ -110,7 +110,7 @@ def test_play_evaluates_the_base_gait_without_opengl(tmp_path):
 
 def test_play_pairs_the_policy_with_the_base_gait(trained):
     out = run(
-        "runners.play", "--checkpoint", str(trained / "model_1.pt"), "--base-gait",
+        "rwalk.runners.play", "--checkpoint", str(trained / "model_1.pt"), "--base-gait",
         "--episodes", "2", "--max-steps", "15", "--settle-steps", "3",
     )  # fmt: skip
     assert "| base gait | 2 |" in out and "| policy model_1.pt | 2 |" in out
@@ -129,7 +129,7 @@ def _gl_works() -> bool:
 def test_play_films_an_episode(tmp_path):
     video = tmp_path / "episode.gif"
     run(
-        "runners.play", "--base-gait", "--episodes", "1", "--max-steps", "20",
+        "rwalk.runners.play", "--base-gait", "--episodes", "1", "--max-steps", "20",
         "--settle-steps", "2", "--video", str(video), "--video-seconds", "0.2",
     )  # fmt: skip
     import imageio.v3 as iio
@@ -141,7 +141,7 @@ def test_play_films_an_episode(tmp_path):
 
 def test_train_torchrl_runs_two_iterations(tmp_path):
     out = run(
-        "runners.train_torchrl", "--num-envs", "8", "--iterations", "2", "--steps-per-env", "8",
+        "rwalk.runners.train_torchrl", "--num-envs", "8", "--iterations", "2", "--steps-per-env", "8",
         "--minibatch-size", "32", "--settle-steps", "2", "--log-dir", str(tmp_path),
     )  # fmt: skip
     assert "[torchrl] iteration 2/2" in out
@@ -150,7 +150,7 @@ def test_train_torchrl_runs_two_iterations(tmp_path):
 
 
 def test_plot_training_draws_the_curves_with_the_base_gait(trained, tmp_path):
-    from runners.plot_training import read_scalars
+    from rwalk.runners.plot_training import read_scalars
 
     series = read_scalars(trained)
     assert [step for step, _, _ in series["Train/mean_reward"]] == [0, 1]
@@ -158,7 +158,7 @@ def test_plot_training_draws_the_curves_with_the_base_gait(trained, tmp_path):
     base = tmp_path / "eval.json"
     base.write_text(json.dumps([{"name": "base gait", "forward_velocity": 0.1, "mean_length": 9}]))
     out = tmp_path / "curve.png"
-    run("runners.plot_training", str(trained), "--out", str(out), "--base-gait-json", str(base))
+    run("rwalk.runners.plot_training", str(trained), "--out", str(out), "--base-gait-json", str(base))
     import imageio.v3 as iio
 
     image = iio.imread(out)
@@ -166,5 +166,5 @@ def test_plot_training_draws_the_curves_with_the_base_gait(trained, tmp_path):
 
 
 def test_walk_demo_prints_the_speed():
-    out = run("runners.walk_demo", "--envs", "2", "--seconds", "1")
+    out = run("rwalk.runners.walk_demo", "--envs", "2", "--seconds", "1")
     assert "forward speed" in out and "expected 0.1333" in out

@@ -1,0 +1,569 @@
+"""Throughput and memory of the env beside its physics floor, measured in one run.
+
+    python -m runners.bench                      # the full sweep (about 35 minutes on 2 cores)
+    python -m runners.bench --quick              # N in {16, 1024}, short windows
+    python -m runners.bench --json bench.json --plot docs/performance.png
+
+Modes, all on world_train with the training defaults, the same N, threads and
+10 substeps per env step:
+
+  b  ResidualWalkVecEnv.step_and_maybe_reset with random actions, resets included
+  a  in the same process as b, timed in alternating rounds with it: raw
+     mujoco.rollout (persistent pool, preallocated outputs, skip_checks) on b's
+     robots, from b's states, with the same random-residual workload and the servo
+     targets precomputed: the physics floor
+  c  rsl-rl's collection loop: PPO.act + RslRlVecEnv.step + PPO.process_env_step
+  d  gymnasium SyncVectorEnv (1 process) and AsyncVectorEnv (one worker process per
+     core) over the single-env ResidualWalkEnv
+  t  thread scaling: b and a on 1 thread and on all cores, all four in one process,
+     alternating
+
+Each measurement runs in a fresh subprocess (its own peak RSS). Ratios to the
+floor come from contenders timed in alternating rounds in one process (c, like b,
+has a floor of its own), so the machine's drift does not land on one side.
+Episodes start spread over their length (like rsl-rl's init_at_random_ep_len), so
+resets happen at their long-run rate inside the timing window; every physics
+substep counts, settling included.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+SIZES = (1, 16, 256, 1024, 4096, 8192)
+QUICK_SIZES = (16, 1024)
+ROUNDS = 4
+GYM_SYNC_SIZES = (1, 16)
+
+
+def _config(threads: int, n: int):
+    """The training defaults for n envs on the given number of threads."""
+    from rwalk.runners.train import Args, env_config
+
+    return env_config(dataclasses.replace(Args(), threads=threads, num_envs=n))
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _timed(step, window: float, min_steps: int = 3) -> tuple[int, float]:
+    """Call step() until window seconds and min_steps have passed; (calls, seconds).
+
+    step() may return the seconds of its own work that count (None: all of it)."""
+    calls, counted, start = 0, 0.0, time.perf_counter()
+    while True:
+        t0 = time.perf_counter()
+        own = step()
+        counted += own if own is not None else time.perf_counter() - t0
+        calls += 1
+        if time.perf_counter() - start >= window and calls >= min_steps:
+            return calls, counted
+
+
+class Floor:
+    """The floor: plain mujoco.rollout on the same robots and workload as the env.
+
+    Starts from the env's current states and applies the base gait plus uniform random
+    residuals drawn from the env's own random stream: the same physics, without the
+    env. The servo targets are computed outside the timed region (a fixed control
+    sequence); only the rollout calls and the state copy are timed. mujoco.rollout
+    cannot carry the solver warmstart, so each call starts it at zero."""
+
+    def __init__(self, core, threads: int, gen: torch.Generator) -> None:
+        import mujoco
+        from mujoco import rollout
+
+        self.n, self.k, self.model = core.num_envs, core.config.decimation, core.model
+        self.core, self.gen = core, gen
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        data = mujoco.MjData(self.model)
+        self.state = np.empty((self.n, mujoco.mj_stateSize(self.model, spec)))
+        for i in range(self.n):
+            core.sim.batch.get_data(i, data)
+            mujoco.mj_getState(self.model, data, self.state[i], spec)
+        nthread = threads or os.cpu_count() or 1
+        self.pool = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
+        self.datas = [mujoco.MjData(self.model) for _ in range(nthread)]
+        self.models = [self.model] * self.n
+        self.out_state = np.empty((self.n, self.k, self.state.shape[1]))
+        self.out_sensors = np.empty((self.n, self.k, self.model.nsensordata))
+        self.tick = core.tick.clone()
+
+    def step(self) -> float:
+        core, n, k = self.core, self.n, self.k
+        residuals = torch.rand(n, 12, generator=self.gen) * 2 - 1
+        residuals = residuals.double().view(n, 4, 3) * core.config.residual_scale
+        ctrl = core.controller.joint_targets(self.tick, k, residuals)[0].numpy()
+        self.tick.add_(k).remainder_(core.controller.period)
+        t0 = time.perf_counter()
+        self.pool.rollout(
+            self.models, self.datas, self.state, ctrl, state=self.out_state,
+            sensordata=self.out_sensors, skip_checks=True, nstep=k,
+        )  # fmt: skip
+        self.state[:] = self.out_state[:, -1]
+        return time.perf_counter() - t0
+
+
+def _spread_episodes(core, generator: torch.Generator) -> None:
+    high = core.config.max_episode_steps
+    core.episode_step.copy_(torch.randint(0, high, core.episode_step.shape, generator=generator))
+
+
+def _time_rollouts(core) -> list[float]:
+    """Wrap the core's (and its pool's) MuJoCo rollouts; returns the running total."""
+    total = [0.0]
+    sims = [core.sim] + ([core._pool.sim] if core._pool is not None else [])
+    for sim in sims:
+        original = sim.rollout
+
+        def timed(*args, _original=original, **kwargs):
+            start = time.perf_counter()
+            try:
+                return _original(*args, **kwargs)
+            finally:
+                total[0] += time.perf_counter() - start
+
+        sim.rollout = timed
+    return total
+
+
+class EnvMeter:
+    """What the core did while its steps were timed: throughput, settling, time in MuJoCo.
+
+    Pool refills are rare and large, so besides the settle share inside the timed
+    windows this reports the amortized one: each reset charged settle_steps x
+    decimation / settle_reuse substeps, what it costs over many refills."""
+
+    def __init__(self, core) -> None:
+        self.core = core
+        self.in_mujoco = _time_rollouts(core)
+        self.before, self.resets = dict(core.physics_steps), core.resets
+
+    def result(self, calls: int, seconds: float) -> dict:
+        core, cfg = self.core, self.core.config
+        physics = {key: core.physics_steps[key] - self.before[key] for key in self.before}
+        total = physics["step"] + physics["settle"]
+        per_reset = cfg.settle_steps * cfg.decimation / (cfg.settle_reuse if cfg.settle_pool else 1)
+        resets = core.resets - self.resets
+        amortized = resets * per_reset
+        return {
+            "env_steps_per_s": calls * core.num_envs / seconds,
+            "physics_steps_per_s": total / seconds,
+            "settle_share": physics["settle"] / total,
+            "settle_share_amortized": amortized / (physics["step"] + amortized),
+            "resets_per_step": resets / calls,
+            "time_in_mujoco": self.in_mujoco[0] / seconds,
+        }
+
+
+def _interleaved(steps: dict, window: float, rounds: int = ROUNDS) -> dict[str, tuple]:
+    """Time each step() for window / rounds seconds in turn, rounds times over.
+
+    Alternating spreads the machine's drifts and noise evenly over the contenders,
+    so their ratios hold even where absolute figures wander. Returns key -> (calls,
+    seconds) summed over the rounds."""
+    totals = {key: (0, 0.0) for key in steps}
+    for _ in range(rounds):
+        for key, step in steps.items():
+            calls, seconds = _timed(step, window / rounds)
+            totals[key] = (totals[key][0] + calls, totals[key][1] + seconds)
+    return totals
+
+
+def _floor_result(floor: Floor, calls: int, seconds: float) -> dict:
+    return {
+        "env_steps_per_s": calls * floor.n / seconds,
+        "physics_steps_per_s": calls * floor.n * floor.k / seconds,
+        "settle_share": 0.0,
+    }
+
+
+def _env_stepper(n: int, threads: int, gen: torch.Generator):
+    """A ResidualWalkVecEnv with the training defaults, episodes spread, and its step()."""
+    from rwalk import ResidualWalkVecEnv
+
+    started = time.perf_counter()
+    env = ResidualWalkVecEnv(n, _config(threads, n), seed=0)
+    td = env.reset()
+    first_reset = {
+        "first_reset_seconds_per_env": (time.perf_counter() - started) / n,
+        "first_reset_substeps_per_env": env.core.physics_steps["settle"] / n,
+    }
+    _spread_episodes(env.core, gen)
+    torch_threads = threads or os.cpu_count() or 1
+
+    def step() -> None:
+        nonlocal td
+        torch.set_num_threads(torch_threads)
+        td.set("action", torch.rand(n, 12, generator=gen) * 2 - 1)
+        _, td = env.step_and_maybe_reset(td)
+
+    step()  # the first partial resets fill the pool
+    return env, step, first_reset
+
+
+def _against_floor(core, step, threads: int, gen: torch.Generator, window: float):
+    """Time step() and a Floor on core's robots in alternating rounds; (row, floor row).
+
+    The row carries its floor's physics steps/s and the peak RSS before the floor
+    allocated its buffers."""
+    _timed(step, window / ROUNDS)  # a first round before the floor allocates its buffers
+    peak_rss = _peak_rss_mb()
+    meter = EnvMeter(core)
+    floor = Floor(core, threads, gen)
+    timed = _interleaved({"env": step, "a": floor.step}, window)
+    a = _floor_result(floor, *timed["a"])
+    row = meter.result(*timed["env"]) | {"peak_rss_mb": peak_rss}
+    row["floor_physics_steps_per_s"] = a["physics_steps_per_s"]
+    return row, a
+
+
+def measure_env(n: int, threads: int, window: float) -> dict:
+    """(b) and its floor (a) on the same robots, timed in alternating rounds."""
+    gen = torch.Generator().manual_seed(0)
+    env, step, first_reset = _env_stepper(n, threads, gen)
+    b, a = _against_floor(env.core, step, threads, gen, window)
+    return {"b": b | first_reset, "a": a}
+
+
+def measure_scaling(n: int, threads: int, window: float) -> dict:
+    """(b) and (a) on 1 thread and on ``threads``, all four in one process, alternating."""
+    gen = torch.Generator().manual_seed(0)
+    steps, meters, floors = {}, {}, {}
+    for t in (1, threads):
+        env, steps[f"b{t}"], _ = _env_stepper(n, t, gen)
+        meters[t] = EnvMeter(env.core)
+        floors[t] = Floor(env.core, t, gen)
+        steps[f"a{t}"] = floors[t].step
+    timed = _interleaved(steps, window)
+    rows = {}
+    for t in (1, threads):
+        rows[f"b{t}"] = meters[t].result(*timed[f"b{t}"]) | {"threads": t}
+        rows[f"a{t}"] = _floor_result(floors[t], *timed[f"a{t}"]) | {"threads": t}
+    one, many = rows["b1"], rows[f"b{threads}"]
+    return {
+        "t": {
+            "env_steps_per_s": many["env_steps_per_s"],
+            "physics_steps_per_s": many["physics_steps_per_s"],
+            "settle_share": many["settle_share"],
+            "env_speedup": many["env_steps_per_s"] / one["env_steps_per_s"],
+            "floor_speedup": rows[f"a{threads}"]["physics_steps_per_s"]
+            / rows["a1"]["physics_steps_per_s"],
+            "pairs": rows,
+        }
+    }
+
+
+def measure_rsl_rl(n: int, threads: int, window: float) -> dict:
+    from rsl_rl.runners import OnPolicyRunner
+
+    from rwalk.runners.train import Args, make_env, rsl_rl_config
+
+    args = dataclasses.replace(Args(), num_envs=n, threads=threads)
+    env = make_env(args)
+    runner = OnPolicyRunner(env, rsl_rl_config(args), log_dir=None, device="cpu")
+    alg = runner.alg
+    _spread_episodes(env.core, torch.Generator().manual_seed(0))
+    obs = env.get_observations()
+    filled = [0]
+
+    def step() -> None:
+        nonlocal obs
+        with torch.inference_mode():
+            actions = alg.act(obs)
+            obs, rewards, dones, extras = env.step(actions)
+            alg.process_env_step(obs, rewards, dones, extras)
+        filled[0] += 1
+        if filled[0] == args.num_steps_per_env:
+            alg.storage.clear()
+            filled[0] = 0
+
+    step()  # the first partial resets fill the pool
+    c, _ = _against_floor(env.core, step, threads, torch.Generator().manual_seed(1), window)
+    return {"c": c}
+
+
+class _SpreadEpisodes:
+    """Env factory for gymnasium vector envs: a single env whose first episode is
+    already ``offset`` steps old, like the batched modes' spread episodes."""
+
+    def __init__(self, config, index: int, offset: int) -> None:
+        self.config, self.index, self.offset = config, index, offset
+
+    def __call__(self):
+        from rwalk import ResidualWalkEnv
+
+        env = ResidualWalkEnv(config=self.config, seed=self.index)
+        original_reset, offset = env.reset, [self.offset]
+
+        def reset(**kwargs):
+            out = original_reset(**kwargs)
+            if offset:
+                env.core.episode_step[0] = offset.pop()
+            return out
+
+        env.reset = reset
+        return env
+
+
+def measure_gym(n: int, processes: int, window: float) -> dict:
+    import gymnasium
+
+    config = dataclasses.replace(_config(1, 1), settle_pool=0)
+    gen = np.random.default_rng(0)
+    offsets = gen.integers(0, config.max_episode_steps, n)
+    makers = [_SpreadEpisodes(config, i, int(offsets[i])) for i in range(n)]
+    if processes > 1:
+        vec = gymnasium.vector.AsyncVectorEnv(makers, context="spawn")  # fork deadlocks OpenMP
+    else:
+        vec = gymnasium.vector.SyncVectorEnv(makers)
+    vec.reset(seed=0)
+    vec.action_space.seed(0)
+    resets = [0]
+
+    def step() -> None:
+        _, _, terminated, truncated, _ = vec.step(vec.action_space.sample())
+        resets[0] += int(np.sum(terminated | truncated))
+
+    step()
+    resets[0] = 0
+    calls, seconds = _timed(step, window)
+    vec.close()
+    k = config.decimation
+    # Each reset settles settle_steps env steps (a start that falls is redrawn: rare).
+    step_physics = calls * n * k
+    settle_physics = resets[0] * config.settle_steps * k
+    total = step_physics + settle_physics
+    return {
+        "d": {
+            "env_steps_per_s": calls * n / seconds,
+            "physics_steps_per_s": total / seconds,
+            "settle_share": settle_physics / total,
+            "settle_share_amortized": settle_physics / total,
+            "resets_per_step": resets[0] / calls,
+        }
+    }
+
+
+MEASURES = {"b": measure_env, "c": measure_rsl_rl, "d": measure_gym, "t": measure_scaling}
+LABELS = {
+    "a": "raw mujoco.rollout (floor)",
+    "b": "ResidualWalkVecEnv",
+    "c": "rsl-rl collection",
+    "d": "gymnasium vector env",
+    "t": "ResidualWalkVecEnv, thread scaling",
+}
+
+
+def worker(mode: str, n: int, threads: int, window: float) -> None:
+    """Measure one configuration; print each result row as a JSON line.
+
+    Mode b also measures the floor (a) right after, on the same robots."""
+    torch.set_num_threads(max(threads, 1) if threads else os.cpu_count() or 1)
+    rows = MEASURES[mode](n, threads, window)
+    for key, row in rows.items():
+        row.setdefault("peak_rss_mb", _peak_rss_mb())
+        row.setdefault("threads", threads)
+        row.update(mode=key, n=n)
+        print("RESULT " + json.dumps(row), flush=True)
+
+
+def plan(quick: bool) -> list[tuple[str, int, int]]:
+    cores = os.cpu_count() or 1
+    sizes = QUICK_SIZES if quick else SIZES
+    thread_counts = sorted({1, cores})
+    runs = [(mode, n, t) for n in sizes for t in thread_counts for mode in "bc"]
+    runs += [("d", n, 1) for n in (GYM_SYNC_SIZES[-1:] if quick else GYM_SYNC_SIZES)]
+    if cores > 1:
+        runs.append(("d", cores, cores))  # AsyncVectorEnv: one worker process per core
+        runs.append(("t", QUICK_SIZES[-1] if quick else 4096, cores))
+    return runs
+
+
+def _ratio_rows(results: list[dict]) -> None:
+    floor = {(r["n"], r["threads"]): r["physics_steps_per_s"] for r in results if r["mode"] == "a"}
+    for r in results:
+        if r["mode"] == "t":
+            continue
+        base = r.get("floor_physics_steps_per_s") or floor.get((r["n"], r["threads"]))
+        r["ratio_to_floor"] = r["physics_steps_per_s"] / base if base else None
+
+
+def table(results: list[dict]) -> str:
+    lines = [
+        "| mode | N | threads | env steps/s | physics steps/s | ratio to its (a) "
+        "| settle share (window / amortized) | time in MuJoCo | peak RSS (MB) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    rows = (r for r in results if r["mode"] != "t")
+    for r in sorted(rows, key=lambda r: (r["mode"], r["n"], r["threads"])):
+        ratio = f"{r['ratio_to_floor']:.3f}" if r.get("ratio_to_floor") else "—"
+        mujoco_share = f"{r['time_in_mujoco']:.1%}" if "time_in_mujoco" in r else "—"
+        lines.append(
+            f"| {r['mode']} {LABELS[r['mode']]} | {r['n']} | {r['threads']} | "
+            f"{r['env_steps_per_s']:,.0f} | {r['physics_steps_per_s']:,.0f} | {ratio} | "
+            f"{r['settle_share']:.1%} / {r.get('settle_share_amortized', 0.0):.1%} | "
+            f"{mujoco_share} | {r['peak_rss_mb']:,.0f} |"
+        )
+    return "\n".join(lines)
+
+
+def summary(results: list[dict]) -> list[str]:
+    """The issue's floors, computed from the sweep."""
+    out = []
+    by = {(r["mode"], r["n"], r["threads"]): r for r in results}
+    cores = max(r["threads"] for r in results)
+    for mode, n, t in [(m, n, t) for m in "bc" for n in (1024, 4096, 8192) for t in (1, cores)]:
+        if (mode, n, t) in by:
+            ratio = by[(mode, n, t)]["ratio_to_floor"]
+            out.append(f"({mode})/(a) physics steps/s at N={n}, {t} thread(s): {ratio:.3f}")
+    batched = [r for r in results if r["mode"] == "b"]
+    gyms = [r for r in results if r["mode"] == "d"]
+    if batched and gyms:
+        best_b = max(batched, key=lambda r: r["env_steps_per_s"])
+        best_d = max(gyms, key=lambda r: r["env_steps_per_s"])
+        out.append(
+            f"best (b) {best_b['env_steps_per_s']:,.0f} env steps/s (N={best_b['n']}) vs best (d) "
+            f"{best_d['env_steps_per_s']:,.0f} (N={best_d['n']}, {best_d['threads']} process(es)): "
+            f"{best_b['env_steps_per_s'] / best_d['env_steps_per_s']:.2f}x"
+        )
+    if ("d", 1, 1) in by and ("a", 1, 1) in by:
+        single, floor = by[("d", 1, 1)], by[("a", 1, 1)]
+        share = single["physics_steps_per_s"] / floor["physics_steps_per_s"]
+        out.append(
+            f"single env: {single['env_steps_per_s']:,.0f} steps/s, {share:.3f} of the N=1 floor"
+        )
+    if ("b", 256, cores) in by and ("b", 4096, cores) in by:
+        small, large = by[("b", 256, cores)], by[("b", 4096, cores)]
+        per_env = (large["peak_rss_mb"] - small["peak_rss_mb"]) * 1024 / (4096 - 256)
+        out.append(f"memory per additional env (N=4096 vs 256): {per_env:.1f} KB")
+    for r in results:
+        if r["mode"] == "t":
+            out.append(
+                f"(b) {r['threads']} threads vs 1 at N={r['n']}, one process, alternating: "
+                f"{r['env_speedup']:.2f}x (raw mujoco.rollout: {r['floor_speedup']:.2f}x)"
+            )
+    if ("b", 4096, cores) in by:
+        r = by[("b", 4096, cores)]
+        out.append(
+            f"training defaults at N=4096: {r['env_steps_per_s']:,.0f} env steps/s, settle share "
+            f"{r['settle_share']:.1%} in the window, {r['settle_share_amortized']:.1%} amortized; "
+            f"first reset {r['first_reset_seconds_per_env'] * 1e3:.1f} ms per env"
+        )
+    return out
+
+
+def plot(results: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 5))
+    for mode in "abc":
+        for t in sorted({r["threads"] for r in results}):
+            rows = sorted(
+                (r for r in results if r["mode"] == mode and r["threads"] == t),
+                key=lambda r: r["n"],
+            )
+            if rows:
+                ax.plot(
+                    [r["n"] for r in rows], [r["physics_steps_per_s"] for r in rows],
+                    marker="o", linestyle="-" if t > 1 else "--",
+                    label=f"({mode}) {LABELS[mode]}, {t} thread{'s' if t > 1 else ''}",
+                )  # fmt: skip
+    for r in results:
+        if r["mode"] == "d":
+            kind = "Async" if r["threads"] > 1 else "Sync"
+            ax.scatter([r["n"]], [r["physics_steps_per_s"]], marker="x", s=60, color="k")
+            ax.annotate(f"(d) {kind}VectorEnv", (r["n"], r["physics_steps_per_s"]), fontsize=7)
+    ax.set(xscale="log", xlabel="N (envs)", ylabel="physics steps / s (settling included)")
+    ax.set_title("Throughput beside the raw mujoco.rollout floor (world_train)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--quick", action="store_true", help="N in {16, 1024}, 2 s windows")
+    parser.add_argument("--seconds", type=float, help="timing window per measurement")
+    parser.add_argument("--json", type=Path, help="save the results here")
+    parser.add_argument("--plot", type=Path, help="save a throughput-vs-N PNG here")
+    parser.add_argument(
+        "--only", action="append", help="measure only 'mode,N,threads' (repeatable, e.g. b,1024,2)"
+    )
+    parser.add_argument("--worker", nargs=4, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.worker:
+        mode, n, threads, window = args.worker
+        worker(mode, int(n), int(threads), float(window))
+        return []
+    window = args.seconds or (2.0 if args.quick else 8.0)
+    runs = plan(args.quick)
+    if args.only:
+        runs = [(m, int(n), int(t)) for m, n, t in (item.split(",") for item in args.only)]
+    results = []
+    started = time.perf_counter()
+    for i, (mode, n, threads) in enumerate(runs, 1):
+        print(
+            f"[{i}/{len(runs)}] ({mode}) {LABELS[mode]}, N={n}, threads={threads} ...",
+            end=" ",
+            flush=True,
+        )
+        command = [
+            sys.executable,
+            "-m",
+            "rwalk.runners.bench",
+            "--worker",
+            mode,
+            str(n),
+            str(threads),
+            str(window),
+        ]
+        done = subprocess.run(command, capture_output=True, text=True, check=False)
+        lines = [line for line in done.stdout.splitlines() if line.startswith("RESULT ")]
+        if done.returncode != 0 or not lines:
+            print(f"failed:\n{done.stderr[-2000:]}")
+            continue
+        rows = [json.loads(line[len("RESULT ") :]) for line in lines]
+        results.extend(rows)
+        print(
+            ", ".join(
+                f"({r['mode']}) {r['env_steps_per_s']:,.0f} env steps/s "
+                f"{r['physics_steps_per_s']:,.0f} physics steps/s"
+                for r in rows
+            )
+            + f" ({time.perf_counter() - started:.0f} s elapsed)",
+            flush=True,
+        )
+    _ratio_rows(results)
+    print()
+    print(table(results))
+    print()
+    for line in summary(results):
+        print(line)
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2))
+    if args.plot:
+        plot(results, args.plot)
+    return results
+
+
+if __name__ == "__main__":
+    main()
