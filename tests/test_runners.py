@@ -35,7 +35,9 @@ def run(*args: str, env: dict | None = None, timeout: int = 600) -> str:
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory) -> Path:
     log_dir = tmp_path_factory.mktemp("train")
-    out = run("rwalk.runners.train", *TINY_TRAIN, "--max-iterations", "2", "--log-dir", str(log_dir))
+    out = run(
+        "rwalk.runners.train", *TINY_TRAIN, "--max-iterations", "2", "--log-dir", str(log_dir)
+    )
     assert "[rwalk] iteration 2/2" in out and "ETA" in out
     return log_dir
 
@@ -158,7 +160,14 @@ def test_plot_training_draws_the_curves_with_the_base_gait(trained, tmp_path):
     base = tmp_path / "eval.json"
     base.write_text(json.dumps([{"name": "base gait", "forward_velocity": 0.1, "mean_length": 9}]))
     out = tmp_path / "curve.png"
-    run("rwalk.runners.plot_training", str(trained), "--out", str(out), "--base-gait-json", str(base))
+    run(
+        "rwalk.runners.plot_training",
+        str(trained),
+        "--out",
+        str(out),
+        "--base-gait-json",
+        str(base),
+    )
     import imageio.v3 as iio
 
     image = iio.imread(out)
