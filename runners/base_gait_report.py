@@ -1,4 +1,4 @@
-"""`python -m runners.base_gait_report` in a checkout: the same as `python -m rwalk.runners.base_gait_report`."""
+"""Checkout shim: `python -m runners.base_gait_report` runs `rwalk.runners.base_gait_report`."""
 
 from rwalk.runners.base_gait_report import main
 

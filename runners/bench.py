@@ -1,4 +1,4 @@
-"""`python -m runners.bench` in a checkout: the same as `python -m rwalk.runners.bench`."""
+"""Checkout shim: `python -m runners.bench` runs `rwalk.runners.bench`."""
 
 from rwalk.runners.bench import main
 

@@ -1,4 +1,4 @@
-"""`python -m runners.play` in a checkout: the same as `python -m rwalk.runners.play`."""
+"""Checkout shim: `python -m runners.play` runs `rwalk.runners.play`."""
 
 from rwalk.runners.play import main
 

@@ -1,4 +1,4 @@
-"""`python -m runners.plot_training` in a checkout: the same as `python -m rwalk.runners.plot_training`."""
+"""Checkout shim: `python -m runners.plot_training` runs `rwalk.runners.plot_training`."""
 
 from rwalk.runners.plot_training import main
 

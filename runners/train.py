@@ -1,4 +1,4 @@
-"""`python -m runners.train` in a checkout: the same as `python -m rwalk.runners.train`."""
+"""Checkout shim: `python -m runners.train` runs `rwalk.runners.train`."""
 
 from rwalk.runners.train import main
 

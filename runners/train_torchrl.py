@@ -1,4 +1,4 @@
-"""`python -m runners.train_torchrl` in a checkout: the same as `python -m rwalk.runners.train_torchrl`."""
+"""Checkout shim: `python -m runners.train_torchrl` runs `rwalk.runners.train_torchrl`."""
 
 from rwalk.runners.train_torchrl import main
 

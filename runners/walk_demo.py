@@ -1,4 +1,4 @@
-"""`python -m runners.walk_demo` in a checkout: the same as `python -m rwalk.runners.walk_demo`."""
+"""Checkout shim: `python -m runners.walk_demo` runs `rwalk.runners.walk_demo`."""
 
 from rwalk.runners.walk_demo import main
 

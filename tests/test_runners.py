@@ -53,8 +53,8 @@ def test_train_writes_checkpoints_logs_config_and_exports(trained):
 
 
 def test_tensorboard_has_every_reward_term(trained):
-    from rwalk.runners.plot_training import read_scalars
     from rwalk.rewards import TERM_NAMES
+    from rwalk.runners.plot_training import read_scalars
 
     tags = set(read_scalars(trained))
     expected = {f"Episode_Reward/{term}" for term in TERM_NAMES} | {
@@ -74,8 +74,8 @@ def test_resume_continues_the_iteration_count(trained, tmp_path):
 
 
 def test_exported_policies_act_like_the_checkpoint(trained):
-    from rwalk.runners.play import eval_config, load_policy
     from rwalk import ResidualWalkVecEnv
+    from rwalk.runners.play import eval_config, load_policy
     from rwalk.wrappers import RslRlVecEnv
 
     env = ResidualWalkVecEnv(4, eval_config(settle_steps=3), seed=0)
@@ -143,8 +143,9 @@ def test_play_films_an_episode(tmp_path):
 
 def test_train_torchrl_runs_two_iterations(tmp_path):
     out = run(
-        "rwalk.runners.train_torchrl", "--num-envs", "8", "--iterations", "2", "--steps-per-env", "8",
-        "--minibatch-size", "32", "--settle-steps", "2", "--log-dir", str(tmp_path),
+        "rwalk.runners.train_torchrl", "--num-envs", "8", "--iterations", "2",
+        "--steps-per-env", "8", "--minibatch-size", "32", "--settle-steps", "2",
+        "--log-dir", str(tmp_path),
     )  # fmt: skip
     assert "[torchrl] iteration 2/2" in out
     saved = torch.load(tmp_path / "torchrl_2.pt", weights_only=False)

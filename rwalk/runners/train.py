@@ -22,8 +22,8 @@ from typing import Any
 
 import torch
 
-from rwalk.runners.cli import parse_dataclass
 from rwalk import EnvConfig, ResidualWalkVecEnv
+from rwalk.runners.cli import parse_dataclass
 from rwalk.wrappers import RslRlVecEnv
 
 

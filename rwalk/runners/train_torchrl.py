@@ -30,10 +30,10 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
+from rwalk import ResidualWalkVecEnv
 from rwalk.runners.cli import parse_dataclass
 from rwalk.runners.train import Args as RslArgs
 from rwalk.runners.train import env_config
-from rwalk import ResidualWalkVecEnv
 
 
 @dataclass(frozen=True)
