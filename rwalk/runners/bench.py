@@ -267,13 +267,12 @@ def measure_scaling(n: int, threads: int, window: float) -> dict:
 
 
 def measure_rsl_rl(n: int, threads: int, window: float) -> dict:
-    from rsl_rl.runners import OnPolicyRunner
-
+    from rwalk.runners.checkpoints import SafeRunner
     from rwalk.runners.train import Args, make_env, rsl_rl_config
 
     args = dataclasses.replace(Args(), num_envs=n, threads=threads)
     env = make_env(args)
-    runner = OnPolicyRunner(env, rsl_rl_config(args), log_dir=None, device="cpu")
+    runner = SafeRunner(env, rsl_rl_config(args), log_dir=None, device="cpu")
     alg = runner.alg
     _spread_episodes(env.core, torch.Generator().manual_seed(0))
     obs = env.get_observations()

@@ -62,14 +62,13 @@ def eval_config(
 
 def load_policy(checkpoint: Path, env: ResidualWalkVecEnv):
     """The checkpoint's deterministic policy and the observation groups it reads."""
-    from rsl_rl.runners import OnPolicyRunner
-
+    from rwalk.runners.checkpoints import SafeRunner
     from rwalk.runners.train import Args, rsl_rl_config
 
     saved = json.loads((checkpoint.parent / "config.json").read_text())["args"]
     args = Args(**{k: tuple(v) if isinstance(v, list) else v for k, v in saved.items()})
     adapter = RslRlVecEnv(env, policy_obs=args.policy_obs, reward_scale=args.reward_scale)
-    runner = OnPolicyRunner(adapter, rsl_rl_config(args), log_dir=None, device="cpu")
+    runner = SafeRunner(adapter, rsl_rl_config(args), log_dir=None, device="cpu")
     runner.load(str(checkpoint))
     policy = runner.get_inference_policy()
 

@@ -151,7 +151,7 @@ def terrain_at(args: Args, iteration: int) -> float:
 
 def train(args: Args) -> Path:
     """Run the training; returns the last checkpoint's path."""
-    from rsl_rl.runners import OnPolicyRunner
+    from rwalk.runners.checkpoints import SafeRunner
 
     clock = time.perf_counter()  # the wall-time budget counts from here, env building included
     torch.manual_seed(args.seed)
@@ -160,7 +160,7 @@ def train(args: Args) -> Path:
     print(f"building {args.num_envs} envs (settling their starts) ...", flush=True)
     env = make_env(args)
     print(f"  ready in {time.perf_counter() - clock:.1f} s", flush=True)
-    runner = OnPolicyRunner(env, rsl_rl_config(args), log_dir=str(log_dir), device="cpu")
+    runner = SafeRunner(env, rsl_rl_config(args), log_dir=str(log_dir), device="cpu")
     checkpoint = None
     if not args.resume:
         start_as_base_gait(runner)
