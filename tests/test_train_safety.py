@@ -17,7 +17,7 @@ import pytest
 import torch
 from test_runners import ROOT, TINY_TRAIN
 
-from rwalk.runners import train
+from rwalk.runners import train, train_torchrl
 from rwalk.runners.checkpoints import (
     LOCK_NAME,
     CheckpointError,
@@ -284,11 +284,18 @@ TRAIN_ONLY = [
     ("--max-episode-steps", "0", "must be >= 1, got 0"),
     ("--hidden-dims", "0", "must be sizes >= 1, got (0,)"),
 ]
+TORCHRL_ONLY = [
+    ("--lmbda", "1.5", "must be in [0, 1], got 1.5"),
+    ("--clip-epsilon", "0", "must be a finite number > 0, got 0.0"),
+    ("--num-mini-batches", "9", "must be <= --num-envs * --num-steps-per-env = 8, got 9"),
+]
 
 
 @pytest.mark.parametrize(
     ("args_class", "flag", "value", "message"),
-    [(train.Args, *bad) for bad in BAD_FLAGS + TRAIN_ONLY],
+    [(train.Args, *bad) for bad in BAD_FLAGS + TRAIN_ONLY]
+    + [(train_torchrl.Args, *bad) for bad in BAD_FLAGS if bad[0] != "--max-minutes"]
+    + [(train_torchrl.Args, *bad) for bad in TORCHRL_ONLY],
 )
 def test_a_bad_flag_is_a_usage_error_naming_it(args_class, flag, value, message, capsys):
     small = ["--num-envs", "2", "--num-steps-per-env", "4"] if flag == "--num-mini-batches" else []
@@ -300,6 +307,7 @@ def test_a_bad_flag_is_a_usage_error_naming_it(args_class, flag, value, message,
 
 def test_the_defaults_are_valid():
     train.Args()
+    train_torchrl.Args()
 
 
 # 7. a --resume that leaves nothing to train is an error ---------------------------------------
@@ -317,10 +325,24 @@ def test_resume_past_max_iterations_names_both_numbers(run3, tmp_path):
     assert not (tmp_path / "out").exists()  # nothing written, nothing exported
 
 
+# 8. one vocabulary ---------------------------------------------------------------------------
+
+
+def test_both_trainers_share_the_names_of_shared_flags():
+    shared = {
+        "num_envs", "max_iterations", "num_steps_per_env", "num_learning_epochs",
+        "num_mini_batches", "hidden_dims", "learning_rate", "gamma", "entropy_coef",
+        "init_noise_std", "reward_scale", "settle_steps", "seed", "threads", "log_dir",
+        "save_interval",
+    }  # fmt: skip
+    for args_class in (train.Args, train_torchrl.Args):
+        assert shared <= {f.name for f in dataclasses.fields(args_class)}, args_class
+
+
 # 9, 10. --help: every flag explained, the usage line a real command ---------------------------
 
 
-@pytest.mark.parametrize("module", [train])
+@pytest.mark.parametrize("module", [train, train_torchrl])
 def test_every_flag_has_help_and_its_default(module):
     parser = build_parser(module.Args, module.__doc__)
     flags = [action for action in parser._actions if action.dest != "help"]
@@ -346,7 +368,7 @@ def test_the_usage_line_names_the_console_script(monkeypatch):
     assert command("rwalk.runners.train") == "python -m rwalk.runners.train"
 
 
-@pytest.mark.parametrize("module", ["runners.train"])
+@pytest.mark.parametrize("module", ["runners.train", "runners.train_torchrl"])
 def test_help_works_from_a_checkout(module):
     done = subprocess.run([sys.executable, "-m", module, "--help"], cwd=ROOT,
                           capture_output=True, text=True, timeout=120, check=False)  # fmt: skip
