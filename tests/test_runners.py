@@ -142,14 +142,18 @@ def test_play_films_an_episode(tmp_path):
 
 
 def test_train_torchrl_runs_two_iterations(tmp_path):
+    from rwalk.runners.checkpoints import load_checkpoint
+
     out = run(
-        "rwalk.runners.train_torchrl", "--num-envs", "8", "--iterations", "2",
-        "--steps-per-env", "8", "--minibatch-size", "32", "--settle-steps", "2",
-        "--log-dir", str(tmp_path),
+        "rwalk.runners.train_torchrl", "--num-envs", "8", "--max-iterations", "2",
+        "--num-steps-per-env", "8", "--num-mini-batches", "2", "--settle-steps", "2",
+        "--hidden-dims", "16", "16", "--log-dir", str(tmp_path),
     )  # fmt: skip
     assert "[torchrl] iteration 2/2" in out
-    saved = torch.load(tmp_path / "torchrl_2.pt", weights_only=False)
-    assert saved["iteration"] == 2 and "actor" in saved
+    saved = load_checkpoint(tmp_path / "torchrl_2.pt")
+    assert saved["iteration"] == 2 and "actor" in saved and saved["trainer"] == "torchrl"
+    assert saved["actor"]["module.0.module.0.0.weight"].shape[0] == 16
+    assert json.loads((tmp_path / "config.json").read_text())["max_iterations"] == 2
 
 
 def test_plot_training_draws_the_curves_with_the_base_gait(trained, tmp_path):

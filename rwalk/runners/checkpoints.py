@@ -1,26 +1,44 @@
-"""Checkpoints as data: atomic writes, and loads that can never run code.
+"""Checkpoints as data: atomic writes, loads that can never run code, and run folders.
 
 rsl-rl's ``OnPolicyRunner.load`` unpickles with ``weights_only=False``, so a
 crafted ``.pt`` file runs whatever it holds. Every checkpoint here is read with
 ``torch.load(weights_only=True)`` first, which admits only tensors, numbers,
 strings and plain containers, and only then handed to the algorithm.
+
+A run folder holds one training run: its checkpoints ``model_<it>.pt`` (the
+state after iteration ``it``, counted from 0), and while a run writes to it, the
+lock file ``.rwalk.lock`` holding that process's pid.
 """
 
 from __future__ import annotations
 
 import os
 import pickle
+import re
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
 import torch
 from rsl_rl.runners import OnPolicyRunner
 
+CHECKPOINT_NAME = re.compile(r"model_(\d+)\.pt")
+"""rsl-rl's checkpoint names; group 1 is the iteration."""
+LOCK_NAME = ".rwalk.lock"
+"""The lock file of a run folder; holds the pid of the process writing to it."""
+TRAINER = "rsl_rl"
+"""The ``"trainer"`` entry of checkpoints that ``SafeRunner`` writes (train_torchrl: "torchrl")."""
+
 
 class CheckpointError(ValueError):
     """A file that is not a loadable checkpoint (truncated, foreign, or unsafe)."""
+
+
+class RunSetupError(RuntimeError):
+    """A training run that cannot start as asked (folder in use or holding another run,
+    or nothing left to train); the message says why and what to pass instead."""
 
 
 def atomic_write(path: str | os.PathLike[str], write: Callable[[IO[bytes]], None]) -> Path:
@@ -86,14 +104,162 @@ def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
     return loaded
 
 
+def check_rsl_rl(loaded: dict[str, Any], path: str | os.PathLike[str]) -> dict[str, Any]:
+    """``loaded`` (from ``load_checkpoint(path)``) if it is an rsl-rl save from ``SafeRunner``.
+
+    Raises:
+        CheckpointError: naming the path, if another trainer wrote it or it lacks ``"iter"``.
+    """
+    trainer = loaded.get("trainer", TRAINER)  # saves from before the key are rsl-rl's
+    if trainer != TRAINER:
+        raise CheckpointError(
+            f"checkpoint {str(path)!r} was written by the {trainer} trainer, not by rsl-rl "
+            "(rwalk-train)"
+        )
+    missing = [key for key in ("iter", "actor_state_dict") if key not in loaded]
+    if missing:
+        raise CheckpointError(f"checkpoint {str(path)!r} lacks {missing}: not an rsl-rl save")
+    return loaded
+
+
+def checkpoint_files(folder: str | os.PathLike[str]) -> list[tuple[int, Path]]:
+    """The ``model_<it>.pt`` files in ``folder`` as (iteration, path), oldest first.
+
+    Temporary files of unfinished writes (``.model_3.pt.x1y2.tmp``) are not checkpoints.
+    """
+    found = []
+    for path in Path(folder).glob("model_*.pt"):
+        match = CHECKPOINT_NAME.fullmatch(path.name)
+        if match and path.is_file():
+            found.append((int(match.group(1)), path))
+    return sorted(found)
+
+
+def newest_checkpoint(
+    folder: str | os.PathLike[str], report: Callable[[str], None] = print
+) -> tuple[Path, dict[str, Any]]:
+    """The checkpoint of ``folder`` with the highest iteration that loads, and its contents.
+
+    Each newer file that does not load (a truncated ``model_9.pt``, ...) is
+    skipped, and ``report`` is told which and why.
+
+    Raises:
+        FileNotFoundError: naming the folder, if it holds no ``model_<it>.pt``.
+        CheckpointError: naming the folder and each file's problem, if none loads.
+    """
+    folder = Path(folder)
+    candidates = checkpoint_files(folder)
+    if not candidates:
+        raise FileNotFoundError(f"no checkpoint model_<iteration>.pt in {str(folder)!r}")
+    problems = []
+    for _, path in reversed(candidates):
+        try:
+            return path, check_rsl_rl(load_checkpoint(path), path)
+        except CheckpointError as error:
+            report(f"skipped {path.name}: {error}")
+            problems.append(str(error))
+    raise CheckpointError(f"no checkpoint in {str(folder)!r} loads: " + "; ".join(problems))
+
+
+def _lock_holder(lock: Path) -> int | None:
+    """The pid written in a lock file, or None if it is gone or holds no pid."""
+    try:
+        return int(lock.read_text().strip())
+    except (FileNotFoundError, ValueError):
+        return None
+
+
+def _is_running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, someone else's
+        return True
+    return True
+
+
+@contextmanager
+def run_lock(
+    folder: str | os.PathLike[str], report: Callable[[str], None] = print
+) -> Iterator[Path]:
+    """Hold ``folder/.rwalk.lock`` (it holds our pid) for the duration of the block.
+
+    The lock file appears complete or not at all (a pid file hard-linked into
+    place, which fails if the name exists). A lock whose pid no longer runs (a
+    killed run) is taken over, and ``report`` says so. The lock is removed on
+    leaving the block if it still holds our pid.
+
+    Raises:
+        RunSetupError: naming the folder and the pid, if a running process holds the lock.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    lock = folder / LOCK_NAME
+    fd, mine = tempfile.mkstemp(prefix=f"{LOCK_NAME}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "w") as file:
+            file.write(f"{os.getpid()}\n")
+        for _ in range(3):  # a stale lock is replaced, then taken like a free one
+            try:
+                os.link(mine, lock)
+                break
+            except FileExistsError:
+                holder = _lock_holder(lock)
+                if holder is not None and _is_running(holder):
+                    raise RunSetupError(
+                        f"{str(folder)!r} is in use by another training (pid {holder} holds "
+                        f"{str(lock)!r}); wait for it to end or choose another --log-dir (if "
+                        "no training runs there, delete the lock file)"
+                    ) from None
+                report(f"taking over the stale lock {lock} (pid {holder} is not running)")
+                lock.unlink(missing_ok=True)
+        else:
+            raise RunSetupError(f"could not take the lock {str(lock)!r}: other processes race")
+    finally:
+        Path(mine).unlink(missing_ok=True)
+    try:
+        yield lock
+    finally:
+        if _lock_holder(lock) == os.getpid():
+            lock.unlink(missing_ok=True)
+
+
+def remove_unfinished_writes(folder: str | os.PathLike[str]) -> list[Path]:
+    """Delete the temporary files that killed ``atomic_write``s of checkpoints and
+    config.json left in ``folder``; call only while holding its ``run_lock``."""
+    folder = Path(folder)
+    leftovers = [*folder.glob(".model_*.pt.*.tmp"), *folder.glob(".config.json.*.tmp")]
+    for path in leftovers:
+        path.unlink(missing_ok=True)
+    return leftovers
+
+
 class SafeRunner(OnPolicyRunner):
-    """rsl-rl's ``OnPolicyRunner`` whose checkpoints are written atomically and read as data."""
+    """rsl-rl's ``OnPolicyRunner`` whose checkpoints are written atomically and read as data.
+
+    Checkpoints carry ``"trainer": "rsl_rl"`` (rsl-rl's ``alg.load`` ignores
+    keys it does not know).
+    """
+
+    _saved: tuple[str, int] | None = None
+    """(path, iteration) of the last save."""
 
     def save(self, path: str, infos: dict | None = None) -> None:
+        """Write the algorithm's state and the iteration to ``path`` atomically.
+
+        rsl-rl's ``learn()`` saves its last iteration twice when that iteration
+        is a multiple of ``cfg["save_interval"]`` (in its loop and after it);
+        the repeated save of the same iteration to the same path is skipped.
+        """
+        if self._saved == (str(path), self.current_learning_iteration):
+            return
         saved = self.alg.save()
         saved["iter"] = self.current_learning_iteration
         saved["infos"] = infos
+        saved["trainer"] = TRAINER
         save_checkpoint(saved, path)
+        self._saved = (str(path), self.current_learning_iteration)
         self.logger.save_model(path, self.current_learning_iteration)
 
     def load(
@@ -103,10 +269,7 @@ class SafeRunner(OnPolicyRunner):
         strict: bool = True,
         map_location: str | None = None,
     ) -> dict | None:
-        loaded = load_checkpoint(path)
-        missing = [key for key in ("iter",) if key not in loaded]
-        if missing:
-            raise CheckpointError(f"checkpoint {str(path)!r} lacks {missing}: not an rsl-rl save")
+        loaded = check_rsl_rl(load_checkpoint(path), path)
         if self.alg.load(loaded, load_cfg, strict):
             self.current_learning_iteration = loaded["iter"]
         return loaded.get("infos")

@@ -1,13 +1,23 @@
 """Train a residual policy with rsl-rl's PPO on the batched env.
 
-    python -m runners.train                      # short defaults for a 2-core CPU
-    python -m runners.train --max-minutes 30 --max-iterations 100000
-    python -m runners.train --resume logs/rwalk/model_49.pt --max-iterations 200
+    rwalk-train                                  # short defaults for a 2-core CPU
+    rwalk-train --max-minutes 30 --max-iterations 100000
+    rwalk-train --resume logs/rwalk --max-iterations 200     # newest checkpoint there
+    rwalk-train --resume logs/rwalk/model_49.pt --max-iterations 200
+
+(In a checkout without installing: python -m runners.train ...)
 
 Writes to --log-dir: TensorBoard events (every reward term, episode length, fall
-rate, forward velocity), checkpoints model_<it>.pt every --save-interval
-iterations, config.json (what play.py needs to rebuild the env), and at the end
-exported/policy.pt (TorchScript) and exported/policy.onnx.
+rate, forward velocity), checkpoints, config.json (what play.py needs to rebuild
+the env), and at the end exported/policy.pt (TorchScript) and
+exported/policy.onnx. Iterations count from 0; model_<it>.pt holds the state
+after iteration <it>, and is written for every <it> that is a multiple of
+--save-interval and for the last iteration (--save-interval 3, 7 iterations:
+model_0.pt, model_3.pt, model_6.pt). Checkpoints and config.json are written
+atomically: a killed run leaves only complete checkpoints. A folder with
+checkpoints belongs to one run: train there again only with --resume
+(continuing at <it> + 1) or --overwrite; .rwalk.lock in it marks a run in
+progress.
 """
 
 from __future__ import annotations
@@ -23,28 +33,72 @@ from typing import Any
 import torch
 
 from rwalk import EnvConfig, ResidualWalkVecEnv
-from rwalk.runners.cli import parse_dataclass
+from rwalk.runners.checkpoints import (
+    CheckpointError,
+    RunSetupError,
+    SafeRunner,
+    atomic_write_text,
+    check_rsl_rl,
+    checkpoint_files,
+    load_checkpoint,
+    newest_checkpoint,
+    remove_unfinished_writes,
+    run_lock,
+)
+from rwalk.runners.cli import (
+    command,
+    parse_dataclass,
+    require_at_least,
+    require_in,
+    require_positive,
+)
 from rwalk.wrappers import RslRlVecEnv
+
+PROG = command("rwalk.runners.train")
+"""The command in usage lines and error messages."""
 
 
 @dataclass(frozen=True)
 class Args:
-    """Training run. Every field is a command-line flag (--num-envs, ...)."""
+    """Training run. Every field is a command-line flag (--num-envs, ...), checked on creation.
+
+    Raises:
+        ValueError: naming the flag, for a value out of its range.
+    """
 
     num_envs: int = field(default=1024, metadata={"help": "parallel envs"})
-    max_iterations: int = field(default=150, metadata={"help": "PPO iterations in total"})
+    max_iterations: int = field(
+        default=150, metadata={"help": "PPO iterations in total, counting those of --resume"}
+    )
     max_minutes: float = field(
         default=math.inf, metadata={"help": "stop at a checkpoint after this much wall time"}
     )
-    log_dir: str = field(default="logs/rwalk", metadata={"help": "output folder"})
+    log_dir: str = field(default="logs/rwalk", metadata={"help": "output folder of this run"})
     seed: int = field(default=0, metadata={"help": "seed of the envs and of torch"})
-    resume: str = field(default="", metadata={"help": "checkpoint to continue from"})
+    resume: str = field(
+        default="",
+        metadata={
+            "help": "continue from this checkpoint file, or from the newest checkpoint that "
+            "loads in this run folder"
+        },
+    )
+    overwrite: bool = field(
+        default=False,
+        metadata={
+            "help": "train in a --log-dir that holds another run's checkpoints: delete its "
+            "model_*.pt files (all but the --resume file) and, unless resuming from it, its "
+            "TensorBoard event files"
+        },
+    )
     terrain_scale: float = field(default=1.0, metadata={"help": "final terrain roughness 0..1"})
     curriculum_iterations: int = field(
         default=0,
         metadata={"help": "ramp the roughness from 0 to --terrain-scale over these iterations"},
     )
-    save_interval: int = field(default=25, metadata={"help": "iterations between checkpoints"})
+    save_interval: int = field(
+        default=25,
+        metadata={"help": "save model_<it>.pt when <it> is a multiple of this, and at the end"},
+    )
     num_steps_per_env: int = field(default=24, metadata={"help": "rollout length per iteration"})
     settle_steps: int = field(default=100, metadata={"help": "zero-residual steps at each start"})
     settle_pool_fraction: float = field(
@@ -67,9 +121,32 @@ class Args:
     threads: int = field(default=0, metadata={"help": "physics threads (0 = all cores)"})
     export: bool = field(default=True, metadata={"help": "export TorchScript and ONNX at the end"})
 
+    def __post_init__(self) -> None:
+        require_at_least(
+            self,
+            1,
+            "num_envs",
+            "max_iterations",
+            "save_interval",
+            "num_steps_per_env",
+            "settle_reuse",
+            "max_episode_steps",
+            "num_learning_epochs",
+            "num_mini_batches",
+        )
+        require_at_least(self, 0, "curriculum_iterations", "settle_steps", "threads", "seed")
+        require_positive(self, "reward_scale", "learning_rate", "init_noise_std")
+        require_positive(self, "max_minutes", finite=False)
+        require_at_least(self, 0, "entropy_coef")
+        require_in(self, "gamma", 0.0, 1.0, low_open=True)
+        require_in(self, "terrain_scale", 0.0, 1.0)
+        require_in(self, "settle_pool_fraction", 0.0, 1.0, low_open=True)
+        if not self.hidden_dims or min(self.hidden_dims) < 1:
+            raise ValueError(f"--hidden-dims must be sizes >= 1, got {self.hidden_dims}")
+
 
 def parse_args(argv: list[str] | None = None) -> Args:
-    return parse_dataclass(Args, argv, __doc__)
+    return parse_dataclass(Args, argv, __doc__, prog=PROG)
 
 
 def env_config(args: Args) -> EnvConfig:
@@ -149,72 +226,134 @@ def terrain_at(args: Args, iteration: int) -> float:
     return args.terrain_scale * min(1.0, iteration / args.curriculum_iterations)
 
 
-def train(args: Args) -> Path:
-    """Run the training; returns the last checkpoint's path."""
-    from rwalk.runners.checkpoints import SafeRunner
+def resume_point(args: Args) -> tuple[Path, int] | None:
+    """The checkpoint --resume names (a file, or a folder's newest that loads) and its iteration.
 
-    clock = time.perf_counter()  # the wall-time budget counts from here, env building included
-    torch.manual_seed(args.seed)
-    log_dir = Path(args.log_dir)
-    log_dir.mkdir(parents=True, exist_ok=True)
-    print(f"building {args.num_envs} envs (settling their starts) ...", flush=True)
-    env = make_env(args)
-    print(f"  ready in {time.perf_counter() - clock:.1f} s", flush=True)
-    runner = SafeRunner(env, rsl_rl_config(args), log_dir=str(log_dir), device="cpu")
-    checkpoint = None
+    Raises:
+        FileNotFoundError, CheckpointError: naming the file or folder.
+        RunSetupError: if the checkpoint's iteration leaves nothing to train.
+    """
     if not args.resume:
-        start_as_base_gait(runner)
-    if args.resume:
-        runner.load(args.resume)
-        runner.current_learning_iteration += 1  # continue after the saved iteration
-        checkpoint = Path(args.resume)
-        print(f"resumed from {args.resume}: next iteration {runner.current_learning_iteration}")
-    (log_dir / "config.json").write_text(
-        json.dumps(
-            {"args": dataclasses.asdict(args), "env": dataclasses.asdict(env.env.config)},
-            indent=2,
+        return None
+    if Path(args.resume).is_dir():
+        path, state = newest_checkpoint(args.resume)
+    else:
+        path = Path(args.resume)
+        state = check_rsl_rl(load_checkpoint(path), path)
+    iteration = int(state["iter"])
+    if iteration + 1 >= args.max_iterations:
+        raise RunSetupError(
+            f"--resume {path} holds iteration {iteration}, so --max-iterations "
+            f"{args.max_iterations} leaves nothing to train (iterations count from 0); "
+            f"pass --max-iterations {iteration + 2} or more"
         )
-    )
+    return path, iteration
 
-    first = runner.current_learning_iteration
-    budget = args.max_minutes * 60.0
-    while runner.current_learning_iteration < args.max_iterations:
-        it = runner.current_learning_iteration
-        remaining = args.max_iterations - it
-        scale = terrain_at(args, it)
-        if scale != env.core.terrain.scale:
-            env.env.set_terrain_scale(scale)
-        chunk = min(args.save_interval, remaining)
-        runner.learn(num_learning_iterations=chunk, init_at_random_ep_len=it == first)
-        runner.logger.writer.close()  # learn() opens a new writer each call
-        runner.current_learning_iteration += 1  # learn() leaves it at its last iteration
-        checkpoint = log_dir / f"model_{runner.current_learning_iteration - 1}.pt"
-        done = runner.current_learning_iteration - first
-        elapsed = time.perf_counter() - clock
-        per_iteration = elapsed / done
-        left = args.max_iterations - runner.current_learning_iteration
-        eta = min(left * per_iteration, max(budget - elapsed, 0.0))
-        print(
-            f"[rwalk] iteration {runner.current_learning_iteration}/{args.max_iterations}, "
-            f"{elapsed / 60:.1f} min elapsed, terrain {scale:.2f}, ETA {eta / 60:.1f} min, "
-            f"checkpoint {checkpoint}",
-            flush=True,
+
+def claim_log_dir(args: Args, log_dir: Path, resume: tuple[Path, int] | None) -> None:
+    """Make ``log_dir`` this run's own: refuse one that holds another run's checkpoints
+    (or, resuming from it, newer ones that would be overwritten) unless --overwrite, which
+    deletes them; delete temporary files of killed writes. Call while holding its lock.
+
+    Raises:
+        RunSetupError: naming the folder and the flags that would allow the run.
+    """
+    resumed, resumed_it = resume if resume else (None, -1)
+    own = resumed is not None and resumed.parent.resolve() == log_dir.resolve()
+    if own and Path(args.resume).is_dir():  # resumed from its newest checkpoint that loads
+        old = []
+    else:  # with a file in it, those newer than the file
+        old = [path for it, path in checkpoint_files(log_dir) if not own or it > resumed_it]
+    if old and args.overwrite:
+        events = [] if own else list(log_dir.glob("events.out.tfevents.*"))
+        for path in [*old, *events]:
+            path.unlink()
+        print(f"--overwrite: deleted {len(old)} checkpoints and {len(events)} event files")
+    elif old and own:
+        raise RunSetupError(
+            f"--resume {resumed} is not the newest checkpoint in {log_dir} (there is "
+            f"{old[-1].name}): training on from it would overwrite the newer ones; pass "
+            f"--overwrite to delete them, or --resume {log_dir} to continue from the newest"
         )
-        if elapsed + per_iteration * min(args.save_interval, left) > budget:
-            print(f"[rwalk] stopping: the {args.max_minutes:g}-minute budget is reached")
-            break
+    elif old:
+        raise RunSetupError(
+            f"--log-dir {log_dir} already holds another run's checkpoints ({old[0].name} .. "
+            f"{old[-1].name}); pass --resume {log_dir} to continue that run, --overwrite to "
+            "replace it, or choose another --log-dir"
+        )
+    for path in remove_unfinished_writes(log_dir):
+        print(f"deleted {path.name}, the unfinished write of a killed run")
 
-    if args.export:
-        runner.export_policy_to_jit(str(log_dir / "exported"), "policy.pt")
-        runner.export_policy_to_onnx(str(log_dir / "exported"), "policy.onnx")
-        print(f"[rwalk] exported {log_dir / 'exported' / 'policy.pt'} and policy.onnx")
-    if checkpoint is None:
-        raise ValueError(f"nothing to train: --max-iterations {args.max_iterations}")
+
+def train(args: Args) -> Path:
+    """Run the training; returns the last checkpoint's path.
+
+    Raises:
+        FileNotFoundError, CheckpointError, RunSetupError: before anything is
+            trained, naming the file, folder or flags at fault.
+    """
+    clock = time.perf_counter()  # the wall-time budget counts from here, env building included
+    resume = resume_point(args)
+    log_dir = Path(args.log_dir)
+    with run_lock(log_dir):  # held until the run ends: one run writes to a folder at a time
+        claim_log_dir(args, log_dir, resume)
+        torch.manual_seed(args.seed)
+        print(f"building {args.num_envs} envs (settling their starts) ...", flush=True)
+        env = make_env(args)
+        print(f"  ready in {time.perf_counter() - clock:.1f} s", flush=True)
+        runner = SafeRunner(env, rsl_rl_config(args), log_dir=str(log_dir), device="cpu")
+        if resume is None:
+            start_as_base_gait(runner)
+        else:
+            runner.load(str(resume[0]))
+            runner.current_learning_iteration += 1  # continue after the saved iteration
+            print(f"resumed from {resume[0]}: next iteration {runner.current_learning_iteration}")
+        config = {"args": dataclasses.asdict(args), "env": dataclasses.asdict(env.env.config)}
+        atomic_write_text(log_dir / "config.json", json.dumps(config, indent=2))
+
+        first = runner.current_learning_iteration
+        budget = args.max_minutes * 60.0
+        while runner.current_learning_iteration < args.max_iterations:
+            it = runner.current_learning_iteration
+            # One learn() call up to the next checkpoint: rsl-rl saves the multiples of
+            # save_interval in its loop and the call's last iteration after it.
+            last = min(-(-it // args.save_interval) * args.save_interval, args.max_iterations - 1)
+            scale = terrain_at(args, it)
+            if scale != env.core.terrain.scale:
+                env.env.set_terrain_scale(scale)
+            runner.learn(num_learning_iterations=last + 1 - it, init_at_random_ep_len=it == first)
+            runner.logger.writer.close()  # learn() opens a new writer each call
+            checkpoint = log_dir / f"model_{last}.pt"
+            runner.current_learning_iteration = last + 1  # learn() leaves it at its last one
+            done = last + 1 - first
+            elapsed = time.perf_counter() - clock
+            per_iteration = elapsed / done
+            left = args.max_iterations - (last + 1)
+            eta = min(left * per_iteration, max(budget - elapsed, 0.0))
+            print(
+                f"[rwalk] iteration {last + 1}/{args.max_iterations}, "
+                f"{elapsed / 60:.1f} min elapsed, terrain {scale:.2f}, ETA {eta / 60:.1f} min, "
+                f"checkpoint {checkpoint}",
+                flush=True,
+            )
+            if elapsed + per_iteration * min(args.save_interval, left) > budget:
+                print(f"[rwalk] stopping: the {args.max_minutes:g}-minute budget is reached")
+                break
+
+        if args.export:
+            runner.export_policy_to_jit(str(log_dir / "exported"), "policy.pt")
+            runner.export_policy_to_onnx(str(log_dir / "exported"), "policy.onnx")
+            print(f"[rwalk] exported {log_dir / 'exported' / 'policy.pt'} and policy.onnx")
     return checkpoint
 
 
 def main(argv: list[str] | None = None) -> Path:
-    return train(parse_args(argv))
+    """The ``rwalk-train`` command; a run that cannot start exits with a one-line error."""
+    args = parse_args(argv)
+    try:
+        return train(args)
+    except (CheckpointError, FileNotFoundError, RunSetupError) as error:
+        raise SystemExit(f"{PROG}: error: {error}") from None
 
 
 if __name__ == "__main__":

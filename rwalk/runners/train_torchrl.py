@@ -1,14 +1,18 @@
 """PPO built from TorchRL's own parts on ResidualWalkVecEnv: the TorchRL path.
 
-    python -m runners.train_torchrl
-    python -m runners.train_torchrl --num-envs 512 --iterations 200 --log-dir logs/torchrl
+    rwalk-train-torchrl
+    rwalk-train-torchrl --num-envs 512 --max-iterations 200 --log-dir logs/torchrl
+
+(In a checkout without installing: python -m runners.train_torchrl ...)
 
 A Collector steps the batched env (partial resets via "_reset"); GAE computes
 advantages; ClipPPOLoss trains a TanhNormal actor and a value network on
 minibatches from a replay buffer. The env's keys observation, phase and
 lateral_offset are concatenated and normalised (ObservationNorm) and the reward
-is scaled (RewardScaling), as train.py does for rsl-rl. Writes checkpoints
-(torchrl_<it>.pt) and prints one progress line per iteration.
+is scaled (RewardScaling), as train.py does for rsl-rl; flags that mean the same
+as train.py's have its names. Writes config.json and checkpoints torchrl_<n>.pt
+(the state after <n> iterations, every --save-interval and at the end; marked
+"trainer": "torchrl"), atomically, and prints one progress line per iteration.
 """
 
 from __future__ import annotations
@@ -31,20 +35,38 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from rwalk import ResidualWalkVecEnv
-from rwalk.runners.cli import parse_dataclass
+from rwalk.runners.checkpoints import (
+    RunSetupError,
+    atomic_write_text,
+    run_lock,
+    save_checkpoint,
+)
+from rwalk.runners.cli import (
+    command,
+    parse_dataclass,
+    require_at_least,
+    require_in,
+    require_positive,
+)
 from rwalk.runners.train import Args as RslArgs
 from rwalk.runners.train import env_config
 
 
 @dataclass(frozen=True)
 class Args:
-    """TorchRL PPO run. Every field is a command-line flag."""
+    """TorchRL PPO run. Every field is a command-line flag, checked on creation.
+
+    Raises:
+        ValueError: naming the flag, for a value out of its range.
+    """
 
     num_envs: int = field(default=256, metadata={"help": "parallel envs"})
-    iterations: int = field(default=50, metadata={"help": "collect + update rounds"})
-    steps_per_env: int = field(default=32, metadata={"help": "env steps per env per round"})
-    epochs: int = field(default=4, metadata={"help": "passes over each batch"})
-    minibatch_size: int = field(default=2048, metadata={"help": "transitions per gradient step"})
+    max_iterations: int = field(
+        default=50, metadata={"help": "PPO iterations (collect + update rounds)"}
+    )
+    num_steps_per_env: int = field(default=32, metadata={"help": "rollout length per iteration"})
+    num_learning_epochs: int = field(default=4, metadata={"help": "PPO epochs per iteration"})
+    num_mini_batches: int = field(default=4, metadata={"help": "minibatches per epoch"})
     learning_rate: float = field(default=3e-4, metadata={"help": "Adam step"})
     gamma: float = field(default=0.99, metadata={"help": "discount"})
     lmbda: float = field(default=0.95, metadata={"help": "GAE lambda"})
@@ -52,12 +74,38 @@ class Args:
     entropy_coef: float = field(default=1e-4, metadata={"help": "entropy bonus"})
     init_noise_std: float = field(default=0.1, metadata={"help": "initial pre-tanh action std"})
     reward_scale: float = field(default=1e-3, metadata={"help": "reward multiplier for PPO"})
-    hidden: int = field(default=128, metadata={"help": "width of the two hidden layers"})
+    hidden_dims: tuple[int, ...] = field(default=(128, 128), metadata={"help": "MLP layers"})
     settle_steps: int = field(default=100, metadata={"help": "zero-residual steps at each start"})
     seed: int = field(default=0, metadata={"help": "seed of the envs and of torch"})
     threads: int = field(default=0, metadata={"help": "physics threads (0 = all cores)"})
     log_dir: str = field(default="logs/torchrl", metadata={"help": "output folder"})
-    save_interval: int = field(default=25, metadata={"help": "rounds between checkpoints"})
+    save_interval: int = field(
+        default=25, metadata={"help": "save torchrl_<n>.pt every this many iterations"}
+    )
+
+    def __post_init__(self) -> None:
+        require_at_least(
+            self,
+            1,
+            "num_envs",
+            "max_iterations",
+            "num_steps_per_env",
+            "num_learning_epochs",
+            "num_mini_batches",
+            "save_interval",
+        )
+        require_at_least(self, 0, "settle_steps", "threads", "seed", "entropy_coef")
+        require_positive(self, "learning_rate", "init_noise_std", "reward_scale", "clip_epsilon")
+        require_in(self, "gamma", 0.0, 1.0, low_open=True)
+        require_in(self, "lmbda", 0.0, 1.0)
+        if not self.hidden_dims or min(self.hidden_dims) < 1:
+            raise ValueError(f"--hidden-dims must be sizes >= 1, got {self.hidden_dims}")
+        frames = self.num_envs * self.num_steps_per_env
+        if self.num_mini_batches > frames:
+            raise ValueError(
+                f"--num-mini-batches must be <= --num-envs * --num-steps-per-env = {frames}, "
+                f"got {self.num_mini_batches}"
+            )
 
 
 OBS_KEYS = ("observation", "phase", "lateral_offset")
@@ -65,7 +113,9 @@ OBS_KEYS = ("observation", "phase", "lateral_offset")
 
 def make_env(args: Args) -> TransformedEnv:
     config = env_config(
-        dataclasses.replace(RslArgs(), threads=args.threads, settle_steps=args.settle_steps)
+        dataclasses.replace(
+            RslArgs(), num_envs=args.num_envs, threads=args.threads, settle_steps=args.settle_steps
+        )
     )
     env = TransformedEnv(
         ResidualWalkVecEnv(args.num_envs, config, seed=args.seed),
@@ -82,7 +132,7 @@ def make_env(args: Args) -> TransformedEnv:
 def make_modules(args: Args, env: TransformedEnv) -> tuple[ProbabilisticActor, ValueOperator]:
     obs_dim = env.observation_spec["policy_obs"].shape[-1]
     act_dim = env.action_spec.shape[-1]
-    body = MLP(in_features=obs_dim, out_features=2 * act_dim, num_cells=[args.hidden] * 2)
+    body = MLP(in_features=obs_dim, out_features=2 * act_dim, num_cells=list(args.hidden_dims))
     last = body[-1]
     with torch.no_grad():  # start as the base gait: zero mean residual
         last.weight.zero_()
@@ -100,25 +150,29 @@ def make_modules(args: Args, env: TransformedEnv) -> tuple[ProbabilisticActor, V
         return_log_prob=True,
     )
     critic = ValueOperator(
-        MLP(in_features=obs_dim, out_features=1, num_cells=[args.hidden] * 2),
+        MLP(in_features=obs_dim, out_features=1, num_cells=list(args.hidden_dims)),
         in_keys=["policy_obs"],
     )
     return actor, critic
 
 
 def train(args: Args) -> Path:
+    """Run the training; returns the last checkpoint's path."""
+    with run_lock(args.log_dir):  # one run writes to a folder at a time
+        return _train(args, Path(args.log_dir))
+
+
+def _train(args: Args, log_dir: Path) -> Path:
     torch.manual_seed(args.seed)
-    log_dir = Path(args.log_dir)
-    log_dir.mkdir(parents=True, exist_ok=True)
-    (log_dir / "config.json").write_text(json.dumps(dataclasses.asdict(args), indent=2))
+    atomic_write_text(log_dir / "config.json", json.dumps(dataclasses.asdict(args), indent=2))
     env = make_env(args)
     actor, critic = make_modules(args, env)
-    frames = args.num_envs * args.steps_per_env
+    frames = args.num_envs * args.num_steps_per_env
     collector = Collector(
         env,
         actor,
         frames_per_batch=frames,
-        total_frames=frames * args.iterations,
+        total_frames=frames * args.max_iterations,
         auto_register_policy_transforms=False,  # the MLP policy keeps no state
     )
     advantage = GAE(gamma=args.gamma, lmbda=args.lmbda, value_network=critic, average_gae=True)
@@ -134,7 +188,7 @@ def train(args: Args) -> Path:
     buffer = ReplayBuffer(
         storage=LazyTensorStorage(frames),
         sampler=SamplerWithoutReplacement(),
-        batch_size=min(args.minibatch_size, frames),
+        batch_size=frames // args.num_mini_batches,
     )
     started = time.perf_counter()
     checkpoint = log_dir / "torchrl_0.pt"
@@ -142,8 +196,8 @@ def train(args: Args) -> Path:
         with torch.no_grad():
             advantage(batch)
         buffer.extend(batch.reshape(-1))
-        for _ in range(args.epochs):
-            for _ in range(max(1, frames // buffer.batch_size)):
+        for _ in range(args.num_learning_epochs):
+            for _ in range(args.num_mini_batches):
                 parts = loss(buffer.sample())
                 total = parts["loss_objective"] + parts["loss_critic"] + parts["loss_entropy"]
                 optimizer.zero_grad()
@@ -155,17 +209,18 @@ def train(args: Args) -> Path:
         reward = batch["next", "reward"].mean().item() / args.reward_scale
         velocity = batch["next", "observation"][..., 7].mean().item()
         elapsed = time.perf_counter() - started
-        eta = elapsed / (it + 1) * (args.iterations - it - 1)
+        eta = elapsed / (it + 1) * (args.max_iterations - it - 1)
         print(
-            f"[torchrl] iteration {it + 1}/{args.iterations}  reward/step {reward:7.2f}  "
+            f"[torchrl] iteration {it + 1}/{args.max_iterations}  reward/step {reward:7.2f}  "
             f"v_x {velocity:+.4f} m/s  episodes ended {int(ended.sum())}  "
             f"{frames / (elapsed / (it + 1)):,.0f} frames/s  ETA {eta / 60:.1f} min",
             flush=True,
         )
-        if (it + 1) % args.save_interval == 0 or it + 1 == args.iterations:
+        if (it + 1) % args.save_interval == 0 or it + 1 == args.max_iterations:
             checkpoint = log_dir / f"torchrl_{it + 1}.pt"
-            torch.save(
+            save_checkpoint(
                 {
+                    "trainer": "torchrl",
                     "iteration": it + 1,
                     "actor": actor.state_dict(),
                     "critic": critic.state_dict(),
@@ -179,7 +234,13 @@ def train(args: Args) -> Path:
 
 
 def main(argv: list[str] | None = None) -> Path:
-    return train(parse_dataclass(Args, argv, __doc__))
+    """The ``rwalk-train-torchrl`` command."""
+    prog = command("rwalk.runners.train_torchrl")
+    args = parse_dataclass(Args, argv, __doc__, prog=prog)
+    try:
+        return train(args)
+    except RunSetupError as error:  # the folder is in use
+        raise SystemExit(f"{prog}: error: {error}") from None
 
 
 if __name__ == "__main__":
