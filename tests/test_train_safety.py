@@ -375,3 +375,10 @@ def test_help_works_from_a_checkout(module):
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith(f"usage: python -m rwalk.{module} [-h] [--num-envs INT]")
     assert "--max-iterations INT" in done.stdout
+
+
+def test_atomic_writes_get_the_mode_of_a_plain_write(tmp_path):
+    plain = tmp_path / "plain.bin"
+    plain.write_bytes(b"x")
+    atomic = save_checkpoint({"iter": 0}, tmp_path / "atomic.pt")
+    assert atomic.stat().st_mode & 0o777 == plain.stat().st_mode & 0o777
