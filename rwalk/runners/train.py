@@ -205,9 +205,10 @@ def train(args: Args) -> Path:
             break
 
     if args.export:
-        runner.export_policy_to_jit(str(log_dir / "exported"), "policy.pt")
-        runner.export_policy_to_onnx(str(log_dir / "exported"), "policy.onnx")
-        print(f"[rwalk] exported {log_dir / 'exported' / 'policy.pt'} and policy.onnx")
+        from rwalk.export import export_policy
+
+        jit_path, onnx_path = export_policy(runner, log_dir / "exported")
+        print(f"[rwalk] exported {jit_path} and {onnx_path} (layout: policy.json)")
     if checkpoint is None:
         raise ValueError(f"nothing to train: --max-iterations {args.max_iterations}")
     return checkpoint
