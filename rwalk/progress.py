@@ -44,7 +44,8 @@ class Progress:
         stream: where lines go; None = ``sys.stderr`` at call time.
         enabled: True prints whatever the stream; None prints only if the
             stream is a terminal; False never prints.
-        interval: most lines per run = one per ``interval`` seconds, plus the last.
+        interval: most lines per run = one per ``interval`` seconds, plus the last;
+            None = ``INTERVAL``.
         clock: seconds from an arbitrary origin (tests pass a fake one).
     """
 
@@ -55,9 +56,10 @@ class Progress:
         *,
         stream: TextIO | None = None,
         enabled: bool | None = None,
-        interval: float = INTERVAL,
+        interval: float | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
+        interval = INTERVAL if interval is None else interval
         if not interval >= 0:
             raise ValueError(f"interval must be >= 0 seconds, got {interval!r}")
         self.label, self.unit = label, unit
@@ -83,13 +85,17 @@ class Progress:
 
     def __call__(self, done: int, total: int) -> None:
         now = self.clock()
-        if done == 0 or done < self._done:
+        if done == 0 or done < self._done:  # a new run
             self._start = self._last = now
             self._printed = False
+            self._done = done
+            return
+        if done == self._done:  # nothing new (e.g. the finished run reported again)
+            return
         self._done = done
         finished = done >= total
         due = now - self._last >= self.interval
-        if done == 0 or not (due or (finished and self._printed)) or not self.active():
+        if not (due or (finished and self._printed)) or not self.active():
             return
         self._last, self._printed = now, True
         self.stream.write(self.line(done, total, now - self._start) + "\n")
