@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -120,6 +121,8 @@ class ResidualWalkCore:
         """Physics substeps run so far: stepping the envs, and settling starts."""
         self.resets = 0
         """Env resets so far (each start an env received)."""
+        self.settle_progress: Callable[[int, int], None] | None = None
+        """Called with (physics steps done, total) of each settle: 0 first, then per chunk."""
         self._started = False
         self.seed(seed)
 
@@ -250,11 +253,14 @@ class ResidualWalkCore:
             failed |= sim.forward(ids)
         else:
             chunk = max(1, SETTLE_CTRL_BUDGET // (ids.size * self._settle_ctrl.shape[1]))
+            report = self.settle_progress or (lambda done, total: None)
+            report(0, ids.size * total)
             for start in range(0, total, chunk):
                 piece = self._settle_ctrl[start : start + chunk]
                 ctrl = np.broadcast_to(piece, (ids.size, *piece.shape))
                 failed |= sim.rollout(np.ascontiguousarray(ctrl), ids)
                 self.physics_steps["settle"] += ids.size * piece.shape[0]
+                report(ids.size * (start + piece.shape[0]), ids.size * total)
         quat = torch.from_numpy(np.asarray(sim.sensordata[ids, OBS_QUAT]))
         failed |= fallen(quat_to_rpy(quat)).numpy()
         return failed

@@ -33,8 +33,8 @@ from rwalk.runners.cli import build_parser, command, parse_dataclass
 TINY = [*TINY_TRAIN, "--no-export"]
 
 
-def tiny_train(log_dir: Path, *extra: str) -> Path:
-    return train.main([*TINY, "--log-dir", str(log_dir), *extra])
+def tiny_train(log_dir: Path, *extra: str) -> None:
+    train.main([*TINY, "--log-dir", str(log_dir), *extra])
 
 
 def iterations(log_dir: Path) -> list[int]:
@@ -244,9 +244,9 @@ def test_a_stale_lock_is_taken_over_and_removed_at_the_end(tmp_path, capsys):
 
 
 def test_save_interval_saves_its_multiples_and_the_last_iteration(tmp_path):
-    assert (
-        tiny_train(tmp_path, "--max-iterations", "7", "--save-interval", "3").name == "model_6.pt"
-    )
+    args = train.parse_args([*TINY, "--log-dir", str(tmp_path), "--max-iterations", "7",
+                             "--save-interval", "3"])  # fmt: skip
+    assert train.train(args).name == "model_6.pt"
     assert iterations(tmp_path) == [0, 3, 6]
     tiny_train(tmp_path, "--max-iterations", "9", "--save-interval", "3", "--resume", str(tmp_path))
     assert iterations(tmp_path) == [0, 3, 6, 8]
@@ -382,3 +382,13 @@ def test_atomic_writes_get_the_mode_of_a_plain_write(tmp_path):
     plain.write_bytes(b"x")
     atomic = save_checkpoint({"iter": 0}, tmp_path / "atomic.pt")
     assert atomic.stat().st_mode & 0o777 == plain.stat().st_mode & 0o777
+
+
+def test_the_console_script_exits_0_after_training(tmp_path):
+    # console scripts run sys.exit(main()): a returned Path would exit with status 1
+    done = subprocess.run(
+        [sys.executable, "-c", "import sys; from rwalk.runners.train import main; sys.exit(main())",
+         *TINY, "--log-dir", str(tmp_path), "--max-iterations", "1"],
+        cwd=ROOT, capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]

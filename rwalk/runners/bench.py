@@ -1,8 +1,9 @@
 """Throughput and memory of the env beside its physics floor, measured in one run.
 
-    python -m runners.bench                      # the full sweep (about 35 minutes on 2 cores)
-    python -m runners.bench --quick              # N in {16, 1024}, short windows
-    python -m runners.bench --json bench.json --plot docs/performance.png
+    rwalk-bench                      # the full sweep (about 35 minutes on 2 cores)
+    rwalk-bench --quick              # N in {16, 1024}, short windows
+    rwalk-bench --json bench.json --plot docs/performance.png
+    rwalk-bench --only b,1024,2 --only a,64,1 --seconds 4
 
 Modes, all on world_train with the training defaults, the same N, threads and
 10 substeps per env step:
@@ -31,6 +32,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 import resource
 import subprocess
@@ -379,6 +381,43 @@ def worker(mode: str, n: int, threads: int, window: float) -> None:
         print("RESULT " + json.dumps(row), flush=True)
 
 
+#: Modes --only accepts; (a) is measured by the same worker as (b), on its robots.
+ONLY_MODES = ("a", *MEASURES)
+
+
+def parse_only(text: str) -> tuple[str, int, int]:
+    """argparse type of --only: ``mode,N,threads`` -> (mode, N, threads)."""
+    wanted = (
+        f"'mode,N,threads' with mode in {', '.join(ONLY_MODES)}, N >= 1 and threads >= 1 "
+        f"(>= 2 for t), e.g. b,1024,2"
+    )
+    parts = text.split(",")
+    try:
+        mode, n, threads = parts[0].strip(), int(parts[1]), int(parts[2])
+    except (IndexError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+    if len(parts) != 3 or mode not in ONLY_MODES or n < 1 or threads < (2 if mode == "t" else 1):
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}")
+    return mode, n, threads
+
+
+def positive_seconds(text: str) -> float:
+    """argparse type of --seconds: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, got {text!r}")
+    return value
+
+
+def worker_runs(only: list[tuple[str, int, int]]) -> list[tuple[str, int, int]]:
+    """The worker runs that measure ``only``: (a) comes from (b)'s worker; no run twice."""
+    runs = [("b" if mode == "a" else mode, n, threads) for mode, n, threads in only]
+    return list(dict.fromkeys(runs))
+
+
 def plan(quick: bool) -> list[tuple[str, int, int]]:
     cores = os.cpu_count() or 1
     sizes = QUICK_SIZES if quick else SIZES
@@ -421,7 +460,9 @@ def table(results: list[dict]) -> str:
 
 def summary(results: list[dict]) -> list[str]:
     """The issue's floors, computed from the sweep."""
-    out = []
+    out: list[str] = []
+    if not results:
+        return out
     by = {(r["mode"], r["n"], r["threads"]): r for r in results}
     cores = max(r["threads"] for r in results)
     for mode, n, t in [(m, n, t) for m in "bc" for n in (1024, 4096, 8192) for t in (1, cores)]:
@@ -496,27 +537,34 @@ def plot(results: list[dict], path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
-def main(argv: list[str] | None = None) -> list[dict]:
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--quick", action="store_true", help="N in {16, 1024}, 2 s windows")
-    parser.add_argument("--seconds", type=float, help="timing window per measurement")
+    parser.add_argument(
+        "--seconds",
+        type=positive_seconds,
+        help="timing window per measurement (default: 2 with --quick, else 8)",
+    )
     parser.add_argument("--json", type=Path, help="save the results here")
     parser.add_argument("--plot", type=Path, help="save a throughput-vs-N PNG here")
     parser.add_argument(
-        "--only", action="append", help="measure only 'mode,N,threads' (repeatable, e.g. b,1024,2)"
+        "--only",
+        action="append",
+        type=parse_only,
+        help="measure only 'mode,N,threads' (repeatable, e.g. b,1024,2; a comes with b)",
     )
     parser.add_argument("--worker", nargs=4, help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
-    if args.worker:
-        mode, n, threads, window = args.worker
-        worker(mode, int(n), int(threads), float(window))
-        return []
+    return parser.parse_args(argv)
+
+
+def bench(argv: list[str] | None = None) -> list[dict]:
+    """Run the sweep of the command line ``argv``; returns the result rows (a failed
+    measurement has none)."""
+    args = parse_args(argv)
     window = args.seconds or (2.0 if args.quick else 8.0)
-    runs = plan(args.quick)
-    if args.only:
-        runs = [(m, int(n), int(t)) for m, n, t in (item.split(",") for item in args.only)]
+    runs = worker_runs(args.only) if args.only else plan(args.quick)
     results = []
     started = time.perf_counter()
     for i, (mode, n, threads) in enumerate(runs, 1):
@@ -558,11 +606,23 @@ def main(argv: list[str] | None = None) -> list[dict]:
     for line in summary(results):
         print(line)
     if args.json:
-        args.json.write_text(json.dumps(results, indent=2))
+        from rwalk.runners.checkpoints import atomic_write_text
+
+        atomic_write_text(args.json, json.dumps(results, indent=2))
     if args.plot:
         plot(results, args.plot)
     return results
 
 
+def main(argv: list[str] | None = None) -> int:
+    """Console script ``rwalk-bench``: exit status 1 if no measurement succeeded."""
+    args = parse_args(argv)
+    if args.worker:
+        mode, n, threads, window = args.worker
+        worker(mode, int(n), int(threads), float(window))
+        return 0
+    return 0 if bench(argv) else 1
+
+
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,8 +1,11 @@
 """Evaluate a trained policy, or the base gait, over fixed-seed episodes; optionally film one.
 
-    python -m runners.play --base-gait
-    python -m runners.play --checkpoint logs/rwalk/model_149.pt --video docs/policy.mp4
-    python -m runners.play --checkpoint logs/rwalk/model_149.pt --base-gait   # both, paired
+    rwalk-play --base-gait
+    rwalk-play --checkpoint logs/rwalk/model_149.pt --video docs/policy.mp4
+    rwalk-play --checkpoint logs/rwalk/model_149.pt --base-gait   # both, paired
+
+(``python -m rwalk.runners.play`` in a checkout.) Checkpoints are rsl-rl's, from
+rwalk-train (model_<it>.pt, with the config.json it writes beside them).
 
 Every run uses the same starts (seed --seed, env i gets start key seed + i), so
 the base gait and a policy meet exactly the same episodes. Episodes are the
@@ -14,9 +17,13 @@ defaults to osmesa here (apt-get install libosmesa6).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
+import math
 import os
 import sys
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -27,7 +34,11 @@ import torch
 
 from rwalk import EnvConfig, ResidualWalkVecEnv
 from rwalk.constants import OBS_LINVEL
+from rwalk.progress import Progress
 from rwalk.wrappers import RslRlVecEnv
+
+#: Which command wrote a checkpoint, by its "trainer" key (or its layout, in older files).
+TRAINERS = {"rsl_rl": "rwalk-train", "torchrl": "rwalk-train-torchrl"}
 
 
 @dataclass(frozen=True)
@@ -60,15 +71,53 @@ def eval_config(
     )
 
 
+def checkpoint_trainer(saved: dict) -> str:
+    """The trainer that wrote a loaded checkpoint: its ``"trainer"`` key, else
+    ``"torchrl"`` / ``"rsl_rl"`` from its keys, else ``"unknown"``."""
+    if "trainer" in saved:
+        return str(saved["trainer"])
+    if {"iteration", "actor"} <= saved.keys():
+        return "torchrl"
+    if {"iter", "actor_state_dict"} <= saved.keys():
+        return "rsl_rl"
+    return "unknown"
+
+
+def check_checkpoint(checkpoint: Path) -> None:
+    """Fail before any work, naming the file, if play cannot evaluate ``checkpoint``.
+
+    Raises:
+        FileNotFoundError: the checkpoint, or the config.json beside it, is missing.
+        ValueError: the file is not a readable checkpoint, or another trainer wrote it.
+    """
+    from rwalk.runners.checkpoints import load_checkpoint
+
+    trainer = checkpoint_trainer(load_checkpoint(checkpoint))
+    if trainer != "rsl_rl":
+        writer = TRAINERS.get(trainer, f"an unknown trainer ({trainer!r})")
+        raise ValueError(
+            f"checkpoint {str(checkpoint)!r} was written by {writer}; play evaluates rsl-rl "
+            f"checkpoints from rwalk-train (model_<it>.pt)"
+        )
+    config = checkpoint.parent / "config.json"
+    if not config.is_file():
+        raise FileNotFoundError(
+            f"{str(config)!r} not found: play rebuilds the policy of checkpoint "
+            f"{str(checkpoint)!r} from the config.json that rwalk-train writes beside it"
+        )
+
+
 def load_policy(checkpoint: Path, env: ResidualWalkVecEnv):
     """The checkpoint's deterministic policy and the observation groups it reads."""
     from rwalk.runners.checkpoints import SafeRunner
     from rwalk.runners.train import Args, rsl_rl_config
 
+    check_checkpoint(checkpoint)
     saved = json.loads((checkpoint.parent / "config.json").read_text())["args"]
     args = Args(**{k: tuple(v) if isinstance(v, list) else v for k, v in saved.items()})
     adapter = RslRlVecEnv(env, policy_obs=args.policy_obs, reward_scale=args.reward_scale)
-    runner = SafeRunner(adapter, rsl_rl_config(args), log_dir=None, device="cpu")
+    with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the whole architecture
+        runner = SafeRunner(adapter, rsl_rl_config(args), log_dir=None, device="cpu")
     runner.load(str(checkpoint))
     policy = runner.get_inference_policy()
 
@@ -85,6 +134,7 @@ def evaluate(
     seed: int,
     policy=None,
     record=None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> Evaluation:
     """Run one episode in every env of ``env`` (reset first) and summarise.
 
@@ -92,18 +142,22 @@ def evaluate(
         seed: env i starts from key seed + i, whatever ran before.
         policy: callable returning (N, 12) actions for the current state; None = base gait.
         record: callable(step) called after every step (e.g. to grab a video frame).
+        progress: callable(steps done, max_episode_steps), e.g. a ``Progress``.
     """
     core = env.core
     env.set_seed(seed)
     core.reset()
     n, vstar = core.num_envs, core.config.expected_velocity
+    limit = core.config.max_episode_steps
+    report = progress or (lambda done, total: None)
+    report(0, limit)
     alive = torch.ones(n, dtype=torch.bool)
     fell = torch.zeros(n, dtype=torch.bool)
     steps = torch.zeros(n)
     totals = {key: torch.zeros(n, dtype=torch.float64) for key in ("return", "v", "err", "contact")}
     zeros = torch.zeros(n, 12)
     with torch.inference_mode():
-        for step in range(core.config.max_episode_steps):
+        for step in range(limit):
             result = core.step(zeros if policy is None else policy())
             a = alive.double()
             v = result.obs[:, OBS_LINVEL.start]
@@ -118,6 +172,8 @@ def evaluate(
                 record(step)
             if not alive.any():
                 break
+            report(step + 1, limit)
+    report(limit, limit)  # every episode has ended
     per_step = {key: (value / steps.double()) for key, value in totals.items() if key != "return"}
     return Evaluation(
         name=name,
@@ -174,26 +230,125 @@ class VideoRecorder:
         print(f"wrote {self.path} ({len(self.frames)} frames)")
 
 
-def main(argv: list[str] | None = None) -> list[Evaluation]:
+def command_name(module: str = "rwalk.runners.play") -> str:
+    """How the user ran this runner, for the usage line: the console script's name
+    (``rwalk-play``), else ``python -m <module>``."""
+    script = Path(sys.argv[0]).name if sys.argv and sys.argv[0] else ""
+    if script.startswith("rwalk-"):
+        return script
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    if spec is not None and spec.name.rsplit(".", 1)[-1] == module.rsplit(".", 1)[-1]:
+        return f"python -m {spec.name}"  # the checkout shim: python -m runners.play
+    return f"python -m {module}"
+
+
+def _number(kind: type, check: Callable[[float], bool], wanted: str):
+    """argparse type: ``kind`` values for which ``check`` holds (NaN never does)."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+        if (isinstance(value, float) and not math.isfinite(value)) or not check(value):
+            raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}")
+        return value
+
+    return parse
+
+
+POSITIVE_INT = _number(int, lambda v: v >= 1, "a positive integer")
+NATURAL_INT = _number(int, lambda v: v >= 0, "an integer >= 0")
+UNIT_FLOAT = _number(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
+POSITIVE_FLOAT = _number(float, lambda v: v > 0.0, "a positive number")
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog=command_name(),
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--checkpoint", type=Path, help="rsl-rl checkpoint (model_<it>.pt)")
-    parser.add_argument("--base-gait", action="store_true", help="evaluate zero residuals")
-    parser.add_argument("--episodes", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=1000, help="start keys seed .. seed+episodes")
-    parser.add_argument("--terrain-scale", type=float, default=1.0)
-    parser.add_argument("--max-steps", type=int, default=1000, help="episode length")
-    parser.add_argument("--settle-steps", type=int, default=500, help="settling at each start")
-    parser.add_argument("--video", type=Path, help="MP4 or GIF of episode 0 (needs OpenGL)")
-    parser.add_argument("--video-seconds", type=float, default=10.0)
-    parser.add_argument("--json", type=Path, help="save the table's figures here")
+    add = parser.add_argument
+    add(
+        "--checkpoint",
+        metavar="PATH",
+        type=Path,
+        help="rsl-rl checkpoint model_<it>.pt (default: none)",
+    )
+    add("--base-gait", action="store_true", help="evaluate zero residuals (default: off)")
+    add(
+        "--episodes",
+        metavar="N",
+        type=POSITIVE_INT,
+        default=100,
+        help="episodes, one per env (default: %(default)s)",
+    )
+    add(
+        "--seed",
+        metavar="SEED",
+        type=NATURAL_INT,
+        default=1000,
+        help="start keys seed .. seed+episodes-1 (default: %(default)s)",
+    )
+    add(
+        "--terrain-scale",
+        metavar="SCALE",
+        type=UNIT_FLOAT,
+        default=1.0,
+        help="terrain roughness, 0 flat .. 1 full (default: %(default)s)",
+    )
+    add(
+        "--max-steps",
+        metavar="STEPS",
+        type=POSITIVE_INT,
+        default=1000,
+        help="episode length in env steps (default: %(default)s)",
+    )
+    add(
+        "--settle-steps",
+        metavar="STEPS",
+        type=NATURAL_INT,
+        default=500,
+        help="settling at each start (default: %(default)s)",
+    )
+    add(
+        "--video",
+        metavar="PATH",
+        type=Path,
+        help="MP4 or GIF of episode 0, needs OpenGL (default: none)",
+    )
+    add(
+        "--video-seconds",
+        metavar="SECONDS",
+        type=POSITIVE_FLOAT,
+        default=10.0,
+        help="length of the video (default: %(default)s)",
+    )
+    add("--json", metavar="PATH", type=Path, help="save the table's figures here (default: none)")
+    add(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress lines on stderr (default: only when stderr is a terminal)",
+    )
     args = parser.parse_args(argv)
     if not args.checkpoint and not args.base_gait:
         parser.error("give --checkpoint PATH, --base-gait, or both")
+    if args.checkpoint:
+        try:
+            check_checkpoint(args.checkpoint)
+        except (FileNotFoundError, ValueError) as error:
+            parser.error(f"--checkpoint: {error}")
+    return args
 
+
+def play(argv: list[str] | None = None) -> list[Evaluation]:
+    """Run the command line ``argv``; returns its table's rows."""
+    args = parse_args(argv)
     config = eval_config(args.terrain_scale, args.max_steps, args.settle_steps)
     env = ResidualWalkVecEnv(args.episodes, config, seed=args.seed)
+    env.core.settle_progress = Progress("settling starts", "physics steps", enabled=args.progress)
     recorder = None
     if args.video:
         from rwalk.render import gl_available
@@ -208,18 +363,28 @@ def main(argv: list[str] | None = None) -> list[Evaluation]:
                 file=sys.stderr,
             )
     rows = []
+
+    def run(name: str, policy=None, record=None) -> None:
+        progress = Progress(f"evaluating {name}", enabled=args.progress)
+        rows.append(evaluate(name, env, args.seed, policy, record, progress))
+
     if args.base_gait:
-        video = recorder if not args.checkpoint else None
-        rows.append(evaluate("base gait", env, args.seed, record=video))
+        run("base gait", record=recorder if not args.checkpoint else None)
     if args.checkpoint:
-        policy = load_policy(args.checkpoint, env)
-        rows.append(evaluate(f"policy {args.checkpoint.name}", env, args.seed, policy, recorder))
+        run(f"policy {args.checkpoint.name}", load_policy(args.checkpoint, env), recorder)
     print(table(rows))
     if recorder is not None:
         recorder.save()
     if args.json:
-        args.json.write_text(json.dumps([asdict(r) for r in rows], indent=2))
+        from rwalk.runners.checkpoints import atomic_write_text
+
+        atomic_write_text(args.json, json.dumps([asdict(r) for r in rows], indent=2))
     return rows
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console script ``rwalk-play`` (returns None: its exit status is 0)."""
+    play(argv)
 
 
 if __name__ == "__main__":

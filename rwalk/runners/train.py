@@ -33,6 +33,8 @@ from typing import Any
 import torch
 
 from rwalk import EnvConfig, ResidualWalkVecEnv
+from rwalk.export import export_policy
+from rwalk.progress import Progress
 from rwalk.runners.checkpoints import (
     CheckpointError,
     RunSetupError,
@@ -201,6 +203,7 @@ def rsl_rl_config(args: Args) -> dict[str, Any]:
 
 def make_env(args: Args) -> RslRlVecEnv:
     vec = ResidualWalkVecEnv(args.num_envs, env_config(args), seed=args.seed)
+    vec.core.settle_progress = Progress("settling starts", "physics steps")
     return RslRlVecEnv(
         vec,
         policy_obs=args.policy_obs,
@@ -341,17 +344,16 @@ def train(args: Args) -> Path:
                 break
 
         if args.export:
-            runner.export_policy_to_jit(str(log_dir / "exported"), "policy.pt")
-            runner.export_policy_to_onnx(str(log_dir / "exported"), "policy.onnx")
-            print(f"[rwalk] exported {log_dir / 'exported' / 'policy.pt'} and policy.onnx")
+            jit_path, onnx_path = export_policy(runner, log_dir / "exported")
+            print(f"[rwalk] exported {jit_path} and {onnx_path} (layout: policy.json)")
     return checkpoint
 
 
-def main(argv: list[str] | None = None) -> Path:
+def main(argv: list[str] | None = None) -> None:
     """The ``rwalk-train`` command; a run that cannot start exits with a one-line error."""
     args = parse_args(argv)
     try:
-        return train(args)
+        train(args)
     except (CheckpointError, FileNotFoundError, RunSetupError) as error:
         raise SystemExit(f"{PROG}: error: {error}") from None
 

@@ -233,12 +233,12 @@ def _train(args: Args, log_dir: Path) -> Path:
     return checkpoint
 
 
-def main(argv: list[str] | None = None) -> Path:
+def main(argv: list[str] | None = None) -> None:
     """The ``rwalk-train-torchrl`` command."""
     prog = command("rwalk.runners.train_torchrl")
     args = parse_dataclass(Args, argv, __doc__, prog=prog)
     try:
-        return train(args)
+        train(args)
     except RunSetupError as error:  # the folder is in use
         raise SystemExit(f"{prog}: error: {error}") from None
 

@@ -1,0 +1,197 @@
+"""Trained policies as files that run without rwalk: TorchScript and ONNX.
+
+``export_policy(runner, folder)`` writes three files, each atomically:
+
+- ``policy.pt``: TorchScript (``torch.jit.load``),
+- ``policy.onnx``: ONNX, one self-contained file (no ``.onnx.data`` sibling),
+  input ``obs`` of shape (batch, D) with a dynamic batch axis, output
+  ``actions`` of shape (batch, 12),
+- ``policy.json``: the input's layout, also stored in the ONNX file's
+  ``metadata_props`` (keys ``input_pieces`` and ``rwalk_layout``).
+
+Both models include the observation normaliser, as rsl-rl's own exports do:
+they take raw observations. The input is the policy group of ``RslRlVecEnv``,
+the pieces of ``--policy-obs`` concatenated in order; by default (D = 68):
+
+| slice | piece | content |
+| --- | --- | --- |
+| 0:65 | ``observation`` | the spec's 65-D observation |
+| 65:67 | ``phase`` | sin(2πφ), cos(2πφ) of the gait phase φ |
+| 67:68 | ``lateral_offset`` | y − y0: torso y minus its value at the episode's start (m) |
+
+The output is the action in [-1, 1] units (the env clips), foot offsets FL, FR,
+RL, RR (x, y, z). ``policy_input(obs, info)`` builds one input row from the
+Gymnasium env's observation and ``info`` (keys ``phase`` and
+``lateral_offset``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import logging
+import math
+import os
+import warnings
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from rwalk.constants import ACTION_DIM, OBS_DIM
+
+#: Size of each observation piece (the names of ``RslRlVecEnv``'s groups).
+PIECE_SIZES = {"observation": OBS_DIM, "phase": 2, "lateral_offset": 1}
+#: What each piece holds.
+PIECE_CONTENT = {
+    "observation": "the spec's 65-D observation (docs/environment.md)",
+    "phase": "sin(2*pi*phase), cos(2*pi*phase) of the gait phase in [0, 1)",
+    "lateral_offset": "torso y minus its value at the episode's start (m)",
+}
+#: The policy group of ``RslRlVecEnv`` and ``rwalk-train`` by default.
+DEFAULT_PIECES = ("observation", "phase", "lateral_offset")
+#: ONNX opset of the export (rsl-rl's choice).
+OPSET = 18
+
+
+def input_layout(pieces: Sequence[str]) -> list[dict[str, Any]]:
+    """Slices of the input: name, start, size and content of each piece, in order."""
+    unknown = [name for name in pieces if name not in PIECE_SIZES]
+    if unknown or not pieces:
+        raise ValueError(f"unknown observation pieces {unknown or pieces!r}; use {DEFAULT_PIECES}")
+    layout, start = [], 0
+    for name in pieces:
+        size = PIECE_SIZES[name]
+        layout.append({"name": name, "start": start, "size": size, "content": PIECE_CONTENT[name]})
+        start += size
+    return layout
+
+
+def policy_input(
+    obs: np.ndarray, info: Mapping[str, Any], pieces: Sequence[str] = DEFAULT_PIECES
+) -> np.ndarray:
+    """One input row of an exported policy, from the Gymnasium env's ``obs`` and ``info``.
+
+    Args:
+        obs: ``ResidualWalkEnv``'s observation. Shape: (65,).
+        info: the ``info`` of the same ``reset``/``step`` (keys ``phase`` in [0, 1)
+            and ``lateral_offset`` in m, where ``pieces`` need them).
+        pieces: the export's layout (``policy.json``'s ``pieces`` names).
+
+    Returns:
+        Shape: (D,) float32 (68 for the default pieces); stack rows for a batch.
+    """
+    obs = np.asarray(obs, dtype=np.float32)
+    if obs.shape != (OBS_DIM,):
+        raise ValueError(f"obs must have shape ({OBS_DIM},), got {obs.shape}")
+    parts = []
+    for piece in input_layout(pieces):
+        name = piece["name"]
+        if name == "observation":
+            parts.append(obs)
+            continue
+        if name not in info:
+            raise KeyError(f"info has no {name!r} (keys: {sorted(info)}); the policy reads it")
+        value = float(info[name])
+        if name == "phase":
+            angle = 2.0 * math.pi * value
+            parts.append(np.array([math.sin(angle), math.cos(angle)], dtype=np.float32))
+        else:
+            parts.append(np.array([value], dtype=np.float32))
+    return np.concatenate(parts)
+
+
+def _policy_and_pieces(runner_or_policy, pieces: Sequence[str] | None):
+    """The rsl-rl model and the pieces of its input (from the runner's env if it has one)."""
+    alg = getattr(runner_or_policy, "alg", None)
+    policy = alg.get_policy() if alg is not None else runner_or_policy
+    if not hasattr(policy, "as_jit") or not hasattr(policy, "obs_dim"):
+        raise TypeError(
+            f"export_policy takes an rsl-rl OnPolicyRunner or MLPModel, "
+            f"got {type(runner_or_policy).__name__}"
+        )
+    if pieces is None:
+        groups = getattr(getattr(runner_or_policy, "env", None), "groups", None)
+        if groups is None:
+            pieces = DEFAULT_PIECES
+        else:
+            pieces = tuple(name for group in policy.obs_groups for name in groups[group])
+    layout = input_layout(pieces)
+    size = sum(piece["size"] for piece in layout)
+    if size != policy.obs_dim:
+        raise ValueError(
+            f"pieces {tuple(pieces)} have {size} values; the policy reads {policy.obs_dim}"
+        )
+    return policy, layout
+
+
+def export_policy(
+    runner_or_policy, folder: str | os.PathLike[str], pieces: Sequence[str] | None = None
+) -> tuple[Path, Path]:
+    """Write ``policy.pt``, ``policy.onnx`` and ``policy.json`` into ``folder``.
+
+    Args:
+        runner_or_policy: an rsl-rl ``OnPolicyRunner`` (the layout comes from its
+            ``RslRlVecEnv``) or its policy model (``MLPModel``).
+        folder: created if missing; nothing is written outside it.
+        pieces: the input's pieces; None = the runner env's policy group, or
+            ``DEFAULT_PIECES`` for a bare model.
+
+    Returns:
+        (TorchScript path, ONNX path).
+    """
+    from rwalk.runners.checkpoints import atomic_write, atomic_write_text
+
+    policy, layout = _policy_and_pieces(runner_or_policy, pieces)
+    folder = Path(folder)
+    size = policy.obs_dim
+    description = {
+        "input": {"name": "obs", "shape": ["batch", size], "dtype": "float32", "pieces": layout},
+        "output": {
+            "name": "actions",
+            "shape": ["batch", ACTION_DIM],
+            "content": "foot offsets FL, FR, RL, RR (x, y, z) in [-1, 1] units (the env clips)",
+        },
+        "observation_normalizer": "included: feed raw observations",
+        "files": {"torchscript": "policy.pt", "onnx": "policy.onnx"},
+    }
+
+    scripted = torch.jit.script(policy.as_jit().to("cpu").eval())
+    jit_path = atomic_write(folder / "policy.pt", lambda file: torch.jit.save(scripted, file))
+
+    model = policy.as_onnx(verbose=False).to("cpu").eval()
+    batch = torch.export.Dim("batch", min=1)
+    quiet = logging.getLogger("torch.onnx")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)  # "torchvision is not installed" notes
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)  # torch.export's own deprecations
+            program = torch.onnx.export(
+                model,
+                (torch.zeros(2, size),),
+                dynamo=True,
+                external_data=False,
+                opset_version=OPSET,
+                input_names=["obs"],
+                output_names=["actions"],
+                dynamic_shapes=({0: batch},),
+                verbose=False,
+            )
+    finally:
+        quiet.setLevel(level)
+    proto = program.model_proto
+    metadata = {
+        "input_pieces": ",".join(f"{p['name']}:{p['size']}" for p in layout),
+        "rwalk_layout": json.dumps(description),
+    }
+    for key, value in metadata.items():
+        proto.metadata_props.add(key=key, value=value)
+    onnx_path = atomic_write(
+        folder / "policy.onnx", lambda file: file.write(proto.SerializeToString())
+    )
+    atomic_write_text(folder / "policy.json", json.dumps(description, indent=2) + "\n")
+    return jit_path, onnx_path

@@ -1,0 +1,166 @@
+"""rwalk-play: evaluations, its errors (named flags and files), help, progress lines."""
+
+import contextlib
+import dataclasses
+import io
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+import rwalk.progress
+
+_GL = os.environ.get("MUJOCO_GL")
+from rwalk.runners.play import check_checkpoint, command_name, parse_args, play  # noqa: E402
+
+if _GL is None:  # play.py defaults MUJOCO_GL for its own process: keep it out of subprocesses
+    os.environ.pop("MUJOCO_GL", None)
+
+ROOT = Path(__file__).resolve().parents[1]
+QUICK = ["--episodes", "2", "--max-steps", "10", "--settle-steps", "3"]
+
+
+def run(*args: str, argv0: str | None = None, env: dict | None = None):
+    """``python -m rwalk.runners.play ARGS``, or the console script's code when argv0 is given."""
+    if argv0 is None:
+        command = [sys.executable, "-m", "rwalk.runners.play", *args]
+    else:  # what the rwalk-play script does
+        code = (
+            f"import sys; sys.argv[0] = {argv0!r}; "
+            "from rwalk.runners.play import main; sys.exit(main())"
+        )
+        command = [sys.executable, "-c", code, *args]
+    return subprocess.run(
+        command, cwd=ROOT, capture_output=True, text=True, timeout=300, check=False,
+        env={**os.environ, **(env or {})},
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory) -> Path:
+    """An rsl-rl checkpoint and the config.json beside it, as rwalk-train writes them."""
+    from rwalk.runners.checkpoints import SafeRunner
+    from rwalk.runners.train import Args, make_env, rsl_rl_config
+
+    args = dataclasses.replace(
+        Args(), num_envs=2, settle_steps=2, max_episode_steps=10, hidden_dims=(8,)
+    )
+    with contextlib.redirect_stdout(io.StringIO()):
+        runner = SafeRunner(make_env(args), rsl_rl_config(args), log_dir=None, device="cpu")
+    folder = tmp_path_factory.mktemp("run")
+    runner.save(str(folder / "model_0.pt"))
+    (folder / "config.json").write_text(json.dumps({"args": dataclasses.asdict(args)}))
+    return folder / "model_0.pt"
+
+
+def test_play_evaluates_the_base_gait_without_opengl(tmp_path):
+    done = run(
+        "--base-gait", "--episodes", "3", "--max-steps", "20", "--settle-steps", "5",
+        "--video", str(tmp_path / "episode.mp4"), "--json", str(tmp_path / "eval.json"),
+        argv0="/venv/bin/rwalk-play", env={"MUJOCO_GL": "disable"},
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr  # the console script exits 0
+    assert "no video: no OpenGL backend" in done.stderr
+    assert "| base gait | 3 |" in done.stdout
+    row = json.loads((tmp_path / "eval.json").read_text())[0]
+    assert row["episodes"] == 3 and 0.0 <= row["fall_rate"] <= 1.0
+    assert not (tmp_path / "episode.mp4").exists()
+
+
+def test_play_pairs_the_policy_with_the_base_gait_without_printing_the_network(checkpoint):
+    done = run("--checkpoint", str(checkpoint), "--base-gait", *QUICK)
+    assert done.returncode == 0, done.stderr
+    assert "| base gait | 2 |" in done.stdout and "| policy model_0.pt | 2 |" in done.stdout
+    assert "Actor Model" not in done.stdout and "Linear(" not in done.stdout
+
+
+def test_play_names_a_missing_checkpoint():
+    done = run("--checkpoint", "/nonexistent/model_9.pt")
+    assert done.returncode == 2
+    assert "--checkpoint: checkpoint '/nonexistent/model_9.pt' not found" in done.stderr
+    assert "config.json" not in done.stderr
+
+
+def test_play_says_which_trainer_wrote_a_torchrl_checkpoint(tmp_path, capsys):
+    path = tmp_path / "torchrl_2.pt"
+    layout = {"iteration": 2, "actor": {"w": torch.zeros(2)}, "critic": {}, "obs_norm": {}}
+    torch.save(layout, path)  # as train_torchrl wrote them before the "trainer" key
+    done = run("--checkpoint", str(path))
+    assert done.returncode == 2
+    assert f"checkpoint {str(path)!r} was written by rwalk-train-torchrl" in done.stderr
+    torch.save({**layout, "trainer": "torchrl"}, path)
+    with pytest.raises(ValueError, match="written by rwalk-train-torchrl; play evaluates rsl-rl"):
+        check_checkpoint(path)
+    torch.save({"trainer": "sb3"}, path)
+    with pytest.raises(ValueError, match=r"an unknown trainer \('sb3'\)"):
+        check_checkpoint(path)
+
+
+def test_play_names_the_missing_config_beside_a_checkpoint(checkpoint, tmp_path):
+    lone = tmp_path / "model_0.pt"
+    lone.write_bytes(checkpoint.read_bytes())
+    with pytest.raises(FileNotFoundError, match=r"config.json' not found.*model_0.pt"):
+        check_checkpoint(lone)
+    check_checkpoint(checkpoint)  # the complete run passes
+
+
+@pytest.mark.parametrize(
+    ("flag", "value"),
+    [
+        ("--episodes", "0"),
+        ("--episodes", "two"),
+        ("--max-steps", "-5"),
+        ("--settle-steps", "-1"),
+        ("--seed", "-1"),
+        ("--terrain-scale", "nan"),
+        ("--terrain-scale", "1.5"),
+        ("--terrain-scale", "-0.1"),
+        ("--video-seconds", "0"),
+        ("--video-seconds", "inf"),
+    ],
+)
+def test_play_rejects_bad_values_naming_the_flag(flag, value, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        parse_args(["--base-gait", flag, value])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {flag}: expected" in err and f"got '{value}'" in err
+
+
+def test_play_help_shows_the_command_and_every_default():
+    done = run("--help")
+    assert done.returncode == 0
+    assert done.stdout.startswith("usage: python -m rwalk.runners.play ")
+    options = done.stdout.split("options:", 1)[1]
+    entries = [entry for entry in options.split("\n  -") if entry.strip()][1:]  # after --help
+    flags = [entry.split()[0].rstrip(",") for entry in entries]
+    assert flags == [
+        "-checkpoint", "-base-gait", "-episodes", "-seed", "-terrain-scale", "-max-steps",
+        "-settle-steps", "-video", "-video-seconds", "-json", "-progress",
+    ]  # fmt: skip
+    for flag, entry in zip(flags, entries, strict=True):
+        assert "(default:" in " ".join(entry.split()), flag
+
+
+def test_usage_names_the_console_script(monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["/venv/bin/rwalk-play"])
+    assert command_name() == "rwalk-play"
+    with pytest.raises(SystemExit):
+        parse_args(["--episodes", "0"])
+    assert capsys.readouterr().err.startswith("usage: rwalk-play ")
+    monkeypatch.setattr(sys, "argv", ["/repo/rwalk/runners/play.py"])
+    assert command_name() == "python -m rwalk.runners.play"
+
+
+def test_progress_lines_only_when_asked_or_on_a_terminal(monkeypatch, capsys):
+    monkeypatch.setattr(rwalk.progress, "INTERVAL", 0.0)  # a line per update
+    play(["--base-gait", *QUICK, "--progress"])
+    err = capsys.readouterr().err
+    assert "settling starts: " in err and " physics steps/s" in err
+    assert "evaluating base gait: 10/10 steps (100%)" in err
+    play(["--base-gait", *QUICK])  # stderr is not a terminal here
+    assert capsys.readouterr().err == ""
