@@ -58,3 +58,16 @@ def test_the_tested_versions_table_is_the_installed_set():
             assert version is None, name
             continue
         assert version is not None and cell.split()[0] == version.public, (name, cell, version)
+
+
+def test_every_console_script_is_a_main_and_the_readme_uses_only_those():
+    import importlib
+
+    scripts = PROJECT["scripts"]
+    for name, target in scripts.items():
+        module, function = target.split(":")
+        assert callable(getattr(importlib.import_module(module), function)), name
+        shim = ROOT / "runners" / f"{module.rsplit('.', 1)[1]}.py"
+        assert shim.is_file(), f"{name}: no checkout shim {shim}"
+    used = set(re.findall(r"\brwalk-[a-z-]+", (ROOT / "README.md").read_text()))
+    assert used and used <= set(scripts), used - set(scripts)
