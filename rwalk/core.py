@@ -101,7 +101,11 @@ class ResidualWalkCore:
         """Physics substeps since gait phase 0, modulo the cycle, at the start of the
         next step. Shape: (N,)."""
         self.episode_step = torch.zeros(n, dtype=torch.long)
-        """Env steps taken in the current episode. Shape: (N,)."""
+        """Env steps counted towards truncation at max_episode_steps. Shape: (N,). Starts
+        at 0, but a trainer may set it (rsl-rl's init_at_random_ep_len spreads the
+        first truncations out), so statistics count ``walked_steps`` instead."""
+        self.walked_steps = torch.zeros(n, dtype=torch.long)
+        """Env steps actually taken in the current episode. Shape: (N,)."""
         self.y0 = torch.zeros(n, dtype=torch.float64)
         """Torso y at the episode's start. Shape: (N,)."""
         self.obs = torch.zeros(n, OBS_DIM, dtype=torch.float64)
@@ -178,6 +182,7 @@ class ResidualWalkCore:
             self.obs[rows] = _observation(self._sensors[rows])
         self.tick[rows] = self._settled_tick
         self.episode_step[rows] = 0
+        self.walked_steps[rows] = 0
         self.y0[rows] = self.obs[rows, OBS_POS.start + 1]
         for total in (*self.episode_sums.values(), self.episode_distance):
             total[rows] = 0.0
@@ -296,6 +301,7 @@ class ResidualWalkCore:
         # (rsl-rl does) and reset outside it.
         self.tick.add_(cfg.decimation).remainder_(self.controller.period)
         self.episode_step += 1
+        self.walked_steps += 1
 
         obs = self.obs
         obs.copy_(_observation(self._sensors))
@@ -370,10 +376,11 @@ class ResidualWalkCore:
     def episode_log(self, env_ids: Tensor) -> dict[str, Tensor]:
         """Per-env statistics of the episodes ending in ``env_ids`` (call before reset).
 
-        Returns per-term episode sums (``"sum/<term>"``), ``"length"`` (steps)
-        and ``"forward_velocity"`` (mean over the episode, m/s). Each shape: (M,).
+        Returns per-term episode sums (``"sum/<term>"``), ``"length"`` (steps
+        actually walked, whatever ``episode_step`` was set to) and
+        ``"forward_velocity"`` (mean over the episode, m/s). Each shape: (M,).
         """
-        length = self.episode_step[env_ids].to(torch.float64)
+        length = self.walked_steps[env_ids].to(torch.float64)
         log = {f"sum/{name}": total[env_ids] for name, total in self.episode_sums.items()}
         log["length"] = length
         log["forward_velocity"] = self.episode_distance[env_ids] / (

@@ -83,3 +83,21 @@ def test_on_policy_runner_trains_two_iterations(tmp_path):
     after = list(runner.alg.get_policy().parameters())
     assert any(not torch.equal(a, b) for a, b in zip(after, before, strict=True))
     assert (tmp_path / "model_1.pt").is_file()
+
+
+def test_episode_statistics_count_the_steps_actually_walked():
+    # rsl-rl's init_at_random_ep_len moves the truncation counter: an env set to
+    # max - 10 walks 10 steps, and its episode must be logged as 10 steps long.
+    env = RslRlVecEnv(ResidualWalkVecEnv(2, QUICK, seed=0))
+    env.episode_length_buf = torch.tensor([QUICK.max_episode_steps - 10, 0])
+    rewards = []
+    for _ in range(10):
+        _, reward, done, extras = env.step(torch.zeros(2, 12))
+        rewards.append(reward[0].item())
+    assert done.tolist() == [1, 0]
+    log = extras["log"]
+    assert log["Episode/length"].item() == 10
+    per_step = sum(rewards) / 10
+    assert log["Episode_Reward/velocity_tracking"].item() == pytest.approx(per_step, rel=0.05)
+    assert per_step > 100  # a walking step earns ~290, so a mean over 12 steps would show
+    assert env.core.walked_steps.tolist() == [0, 10] and env.episode_length_buf.tolist() == [0, 10]
