@@ -4,7 +4,7 @@ Bézier trot of a small MuJoCo quadruped."""
 from rwalk.assets import load_model, resolve_model_path, validate_model
 from rwalk.config import EnvConfig
 from rwalk.core import ResidualWalkCore, StepResult
-from rwalk.envs import ResidualWalkEnv, ResidualWalkVecEnv
+from rwalk.envs import ResidualWalkEnv
 from rwalk.gait import BezierGaitController, GaitParameters
 from rwalk.kinematics import LegGeometry, leg_fk, leg_ik
 from rwalk.rewards import RewardWeights
@@ -31,11 +31,28 @@ __all__ = [
 GYM_ID = "rwalk/ResidualWalk-v0"
 
 
+def __getattr__(name: str):
+    # The TorchRL view loads torchrl on first use only: importing torchrl switches the
+    # process's multiprocessing start method to spawn, which `import rwalk` must not do.
+    if name == "ResidualWalkVecEnv":
+        from rwalk.envs.vec_env import ResidualWalkVecEnv
+
+        return ResidualWalkVecEnv
+    raise AttributeError(f"module 'rwalk' has no attribute {name!r}")
+
+
 def _register() -> None:
     import gymnasium
 
     if GYM_ID not in gymnasium.registry:
-        gymnasium.register(id=GYM_ID, entry_point="rwalk.envs.gym_env:ResidualWalkEnv")
+        # One episode length: make's TimeLimit (spec.max_episode_steps, the spec's 1000 unless
+        # make is given another); the env itself then has no limit of its own.
+        gymnasium.register(
+            id=GYM_ID,
+            entry_point="rwalk.envs.gym_env:ResidualWalkEnv",
+            max_episode_steps=1000,
+            kwargs={"max_episode_steps": None},
+        )
 
 
 _register()

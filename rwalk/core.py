@@ -130,6 +130,36 @@ class ResidualWalkCore:
         self._started = False
         self.seed(seed)
 
+    #: Attributes rebuilt from the config when a core is unpickled or deep-copied.
+    _REBUILT = (
+        "model", "terrain", "geometry", "controller", "sim", "_sensors", "_settle_ctrl",
+        "_stand_joints", "_pool", "settle_progress",
+    )  # fmt: skip
+
+    def __getstate__(self) -> dict:
+        """Config, counters and buffers, plus each simulation's integration state:
+        enough to rebuild the core and continue exactly where it was."""
+        state = {k: v for k, v in self.__dict__.items() if k not in self._REBUILT}
+        state["sim_state"] = self.sim.state.copy()
+        state["terrain_scale"] = self.terrain.scale
+        pool = self._pool
+        if pool is not None:
+            state["pool"] = (pool.sim.state.copy(), pool.obs.clone(), pool.uses_left.copy(),
+                             pool._next)  # fmt: skip
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        state = dict(state)
+        sim_state, scale = state.pop("sim_state"), state.pop("terrain_scale")
+        pool = state.pop("pool", None)
+        self.__init__(state["config"], state["num_envs"], seed=0)
+        if scale != self.terrain.scale:
+            self.set_terrain_scale(scale)
+        self.__dict__.update(state)
+        self.sim.state[:] = sim_state
+        if pool is not None:
+            self._pool.sim.state[:], self._pool.obs, self._pool.uses_left, self._pool._next = pool
+
     @property
     def started(self) -> bool:
         """Whether every env has been reset at least once (step() needs it)."""
@@ -176,7 +206,7 @@ class ResidualWalkCore:
                 ids.size, lambda stale: self._settle_fresh(pool.sim, stale, randomize)
             )
             self.sim.state[ids] = pool.sim.state[entries]
-            self.obs[rows] = _observation(pool.sensors[torch.from_numpy(entries)])
+            self.obs[rows] = pool.obs[torch.from_numpy(entries)]
         else:
             self._settle_fresh(self.sim, ids, randomize)
             self.obs[rows] = _observation(self._sensors[rows])
@@ -410,7 +440,9 @@ class _StartPool:
         self.sim = BatchedSim(core.model, size, core.config.num_threads)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
-            self.sensors = torch.from_numpy(self.sim.sensordata)
+            self._sensors = torch.from_numpy(self.sim.sensordata)
+        self.obs = torch.zeros(size, OBS_DIM, dtype=torch.float64)
+        """Spec observation of each settled start. Shape: (size, 65)."""
         self.uses_left = np.zeros(size, dtype=np.int64)
         self._next = 0
 
@@ -419,6 +451,8 @@ class _StartPool:
         if int((self.uses_left > 0).sum()) < count:
             stale = np.flatnonzero(self.uses_left == 0).astype(np.int32)
             refill(stale)
+            rows = torch.from_numpy(stale.astype(np.int64))
+            self.obs[rows] = _observation(self._sensors[rows])
             self.uses_left[stale] = self.reuse
         order = (np.arange(self.size) + self._next) % self.size
         chosen = order[self.uses_left[order] > 0][:count]

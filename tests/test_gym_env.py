@@ -83,7 +83,7 @@ def test_spec_example_custom_gait(capsys):
     print(f"Expected velocity: {env.expected_velocity:.3f} m/s")
 
     assert capsys.readouterr().out.strip() == "Expected velocity: 0.125 m/s"
-    assert obs.shape == (65,) and info == {}
+    assert obs.shape == (65,) and set(info) == {"phase", "lateral_offset"}
 
 
 def test_spec_example_training_with_ppo(tmp_path, monkeypatch):
@@ -205,3 +205,64 @@ def test_divergence_ends_the_episode_and_reset_recovers(tmp_path, monkeypatch):
     env.reset()
     _, _, terminated, _, info = env.step(np.zeros(12))
     assert not terminated and not info["diverged"]
+
+
+def test_info_has_the_phase_and_lateral_offset_on_reset_and_step():
+    env = ResidualWalkEnv(settle_steps=5)
+    _, info = env.reset(seed=0)
+    core = env.core
+    assert info["phase"] == core.phase[0].item() and 0.0 <= info["phase"] < 1.0
+    assert info["lateral_offset"] == 0.0  # y0 is where the episode starts
+    for _ in range(5):
+        obs, _, _, _, info = env.step(np.full(12, 0.5, dtype=np.float32))
+    assert info["phase"] == core.phase[0].item()
+    assert info["lateral_offset"] == (core.obs[0, 1] - core.y0[0]).item() != 0.0
+
+
+@pytest.mark.parametrize("limit", [None, 30])
+def test_gym_make_has_one_episode_length(limit):
+    kwargs = {} if limit is None else {"max_episode_steps": limit}
+    env = gym.make(GYM_ID, model_path="model/world_flat.xml", settle_steps=2, **kwargs)
+    expected = 1000 if limit is None else limit
+    assert env.spec.max_episode_steps == expected
+    env.reset(seed=0)
+    zeros = np.zeros(12, dtype=np.float32)
+    for step in range(1, expected + 1):
+        _, _, terminated, truncated, _ = env.step(zeros)
+        assert not terminated and truncated == (step == expected), step
+
+
+def test_gym_make_refuses_a_config_episode_length_it_would_ignore():
+    from rwalk import EnvConfig
+
+    with pytest.raises(ValueError, match=r"gymnasium.make\(\.\.\., max_episode_steps=30\)"):
+        gym.make(GYM_ID, config=EnvConfig(max_episode_steps=30))
+
+
+def test_pickle_and_deepcopy_continue_exactly_where_the_env_was():
+    import copy
+    import pickle
+
+    env = ResidualWalkEnv(settle_steps=5)
+    env.reset(seed=3, options={"randomize": True})
+    actions = np.random.default_rng(0).uniform(-1, 1, (40, 12)).astype(np.float32)
+    for action in actions[:10]:
+        env.step(action)
+    copies = [copy.deepcopy(env), pickle.loads(pickle.dumps(env))]
+    try:
+        import cloudpickle
+
+        copies.append(cloudpickle.loads(cloudpickle.dumps(env)))
+    except ImportError:
+        pass
+    for action in actions[10:]:
+        expected = env.step(action)
+        for other in copies:
+            got = other.step(action)
+            np.testing.assert_array_equal(got[0], expected[0])
+            assert got[1:4] == expected[1:4] and got[4] == expected[4]
+    obs, info = env.reset(seed=7)
+    for other in copies:
+        again, again_info = other.reset(seed=7)
+        np.testing.assert_array_equal(again, obs)
+        assert again_info == info

@@ -52,7 +52,16 @@ class ResidualWalkEnv(gym.Env):
 
     ## Episode End
     Terminated when |roll| or |pitch| > π/3 (or the simulation diverged);
-    truncated after ``max_episode_steps`` steps.
+    truncated after ``max_episode_steps`` steps. ``gymnasium.make`` builds it with
+    ``max_episode_steps=None`` (no limit of its own) and its ``TimeLimit`` wrapper
+    truncates at ``spec.max_episode_steps`` (1000, or ``make``'s argument): one limit.
+
+    ## Info
+    On reset and step: ``phase`` (gait phase in [0, 1) at the start of the next
+    step) and ``lateral_offset`` (torso y − y0, metres) — with the observation,
+    the 68 inputs of an exported policy (``rwalk.export.policy_input``). On step
+    also ``reward_components`` (each term by name), ``body_height`` (metres) and
+    ``diverged``.
 
     ## Arguments
     As in the spec. Alternatively ``config`` (an ``EnvConfig``) sets everything,
@@ -67,24 +76,34 @@ class ResidualWalkEnv(gym.Env):
         model_path: str | os.PathLike[str] = "model/world_train.xml",
         gait_params: GaitParameters | None = None,
         residual_scale: float = 0.02,
-        max_episode_steps: int = 1000,
+        max_episode_steps: int | None = 1000,
         settle_steps: int = 500,
         seed: int | None = None,
         *,
         config: EnvConfig | None = None,
         render_mode: str | None = None,
     ) -> None:
+        # None: no limit of the env's own (gymnasium.make's TimeLimit truncates instead).
+        self._truncates = max_episode_steps is not None
         spec_args = {
             "model_path": str(model_path),
             "gait": gait_params if gait_params is not None else GaitParameters(),
             "residual_scale": residual_scale,
-            "max_episode_steps": max_episode_steps,
+            "max_episode_steps": max_episode_steps if self._truncates else 1000,
             "settle_steps": settle_steps,
         }
         if config is None:
             config = EnvConfig(**spec_args)
         elif spec_args != _SPEC_DEFAULTS:
             raise ValueError("pass either config or the spec's constructor arguments, not both")
+        elif (
+            not self._truncates and config.max_episode_steps != _SPEC_DEFAULTS["max_episode_steps"]
+        ):
+            raise ValueError(
+                f"config.max_episode_steps={config.max_episode_steps} has no effect under "
+                "gymnasium.make, whose TimeLimit ends episodes: pass "
+                f"gymnasium.make(..., max_episode_steps={config.max_episode_steps})"
+            )
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
@@ -121,7 +140,7 @@ class ResidualWalkEnv(gym.Env):
         if seed is not None:
             self.core.seed(seed)
         self.core.reset(randomize=randomize)
-        return self._observation(), {}
+        return self._observation(), self._info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         array = np.asarray(action)
@@ -131,19 +150,31 @@ class ResidualWalkEnv(gym.Env):
         info = {
             "reward_components": {name: float(term[0]) for name, term in result.terms.items()},
             "body_height": float(result.obs[0, OBS_POS.start + 2]),
-            "phase": float(self.core.phase[0]),
             "diverged": bool(result.diverged[0]),
+            **self._info(),
         }
         return (
             self._observation(),
             float(result.reward[0]),
             bool(result.terminated[0]),
-            bool(result.truncated[0]),
+            self._truncates and bool(result.truncated[0]),
             info,
         )
 
     def _observation(self) -> np.ndarray:
         return self.core.obs[0].numpy().astype(np.float32)
+
+    def _info(self) -> dict[str, float]:
+        core = self.core
+        return {
+            "phase": float(core.phase[0]),
+            "lateral_offset": float(core.obs[0, OBS_POS.start + 1] - core.y0[0]),
+        }
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Picklable (and deep-copyable): the core pickles its config and state; an
+        open renderer is dropped and reopened by the next ``render()``."""
+        return {**self.__dict__, "_renderer": None}
 
     def render(self) -> np.ndarray | None:
         """An RGB frame of the robot (needs an OpenGL backend, e.g. MUJOCO_GL=osmesa)."""
