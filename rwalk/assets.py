@@ -10,6 +10,7 @@ import mujoco
 from rwalk.constants import (
     FOOT_GEOMS,
     FOOT_SITES,
+    GROUND_GEOM,
     JOINT_NAMES,
     MODEL_DIR,
     OBSERVATION_SENSORS,
@@ -19,9 +20,11 @@ from rwalk.constants import (
 
 
 def resolve_model_path(path: str | os.PathLike[str]) -> Path:
-    """Find a model file: as given (absolute or from the working directory), else
-    among the models packaged with rwalk (so ``"model/world_train.xml"`` works
-    from any directory and in a non-editable install).
+    """Find a model file: as given (absolute or from the working directory), else,
+    for the exact names of the packaged models (``"model/world_train.xml"`` or
+    ``"world_train.xml"``), the copy packaged with rwalk, so that those work from
+    any directory and in a non-editable install. Any other path that does not
+    exist is an error: a mistyped folder never falls back to a packaged file.
 
     Raises:
         FileNotFoundError: naming the path and where it was looked for.
@@ -29,17 +32,14 @@ def resolve_model_path(path: str | os.PathLike[str]) -> Path:
     given = Path(path).expanduser()
     if given.is_file():
         return given.resolve()
-    candidates = [given]
-    if not given.is_absolute():
-        parts = given.parts
-        packaged = MODEL_DIR.joinpath(*parts[1:]) if parts and parts[0] == "model" else None
-        for candidate in (packaged, MODEL_DIR / given.name):
-            if candidate is not None and candidate.is_file():
-                return candidate.resolve()
-            if candidate is not None:
-                candidates.append(candidate)
-    tried = ", ".join(str(c) for c in dict.fromkeys(candidates))
-    raise FileNotFoundError(f"model file {str(path)!r} not found (looked at: {tried})")
+    tried = [str(given)]
+    parts = given.parts
+    if parts in ((given.name,), ("model", given.name)):
+        packaged = MODEL_DIR / given.name
+        if packaged.is_file():
+            return packaged.resolve()
+        tried.append(str(packaged))
+    raise FileNotFoundError(f"model file {str(path)!r} not found (looked at: {', '.join(tried)})")
 
 
 def validate_model(model: mujoco.MjModel, source: str = "model") -> None:
@@ -68,8 +68,16 @@ def validate_model(model: mujoco.MjModel, source: str = "model") -> None:
         for kind, (wanted, present) in required.items()
         for name in sorted(wanted - present)
     ]
+    if GROUND_GEOM not in required["geom"][1]:
+        missing.append(f"geom {GROUND_GEOM!r} (the ground: a plane or a heightfield)")
     if missing:
         raise ValueError(f"{source} lacks required elements: {', '.join(missing)}")
+    ground = int(model.geom(GROUND_GEOM).type[0])
+    if ground not in (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD):
+        raise ValueError(
+            f"{source}: geom {GROUND_GEOM!r} must be a plane or a heightfield, got "
+            f"{mujoco.mjtGeom(ground).name}"
+        )
     # The observation is sensordata itself, so the sensors must come first, in order.
     offset = 0
     for name, width in OBSERVATION_SENSORS:

@@ -8,6 +8,14 @@ from dataclasses import dataclass, field, fields
 from rwalk.gait import GaitParameters
 from rwalk.rewards import RewardWeights
 
+#: Most physics substeps per env step: the controller's targets for a whole control
+#: period are computed at once, so this bounds the memory of one step (and of settling).
+MAX_DECIMATION = 1000
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
 
 @dataclass(frozen=True)
 class EnvConfig:
@@ -55,6 +63,20 @@ class EnvConfig:
         def bad(name: str, why: str) -> ValueError:
             return ValueError(f"EnvConfig.{name} {why}, got {getattr(self, name)!r}")
 
+        for name, kind in (("gait", GaitParameters), ("reward_weights", RewardWeights)):
+            if not isinstance(getattr(self, name), kind):
+                raise TypeError(
+                    f"EnvConfig.{name} must be a {kind.__name__}, got "
+                    f"{type(getattr(self, name)).__name__} {getattr(self, name)!r}"
+                )
+        for name in ("start_position", "position_noise"):
+            value = getattr(self, name)
+            if not (
+                isinstance(value, tuple)
+                and len(value) == 2
+                and all(_is_number(v) and math.isfinite(v) for v in value)
+            ):
+                raise bad(name, "must be a pair of finite numbers (x, y)")
         for f in fields(self):
             value = getattr(self, f.name)
             if isinstance(value, float) and not math.isfinite(value):
@@ -72,6 +94,12 @@ class EnvConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise bad(name, f"must be an integer >= {low}")
+        if self.decimation > MAX_DECIMATION:
+            raise bad(
+                "decimation",
+                f"must be <= {MAX_DECIMATION} (physics steps per control step: a 50 Hz controller "
+                "at a 2 ms timestep needs 10; each env step holds decimation servo targets)",
+            )
         if not 0.0 <= self.terrain_scale <= 1.0:
             raise bad("terrain_scale", "must be in [0, 1]")
         if min(self.position_noise) < 0 or self.yaw_noise < 0 or self.tilt_noise < 0:

@@ -19,6 +19,7 @@ import warnings
 from collections.abc import Callable
 from typing import NamedTuple
 
+import mujoco
 import numpy as np
 import torch
 from torch import Tensor
@@ -79,17 +80,29 @@ class ResidualWalkCore:
     """
 
     def __init__(self, config: EnvConfig, num_envs: int, seed: int | None = None) -> None:
-        if not isinstance(num_envs, int) or num_envs < 1:
+        if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        if not isinstance(config, EnvConfig):
+            raise TypeError(f"config must be an EnvConfig, got {type(config).__name__}")
         self.config = config
         self.num_envs = num_envs
         self.model = load_model(config.model_path)
         self.terrain = Terrain(self.model)
-        self.terrain.set_scale(self.model, config.terrain_scale)
+        if self.terrain.is_heightfield:
+            self.terrain.set_scale(self.model, config.terrain_scale)
         self.geometry = LegGeometry.from_model(self.model)
         self.dt = float(self.model.opt.timestep)
+        if not (self.dt > 0 and math.isfinite(self.dt)):
+            raise ValueError(f"{config.model_path}: option timestep must be > 0, got {self.dt!r}")
         self.control_dt = self.dt * config.decimation
         self.controller = BezierGaitController(config.gait, self.geometry, dt=self.dt)
+        if self.controller.period < 2 * config.decimation:
+            raise ValueError(
+                f"GaitParameters.cycle_time ({config.gait.cycle_time!r} s) must span at least 2 "
+                f"control steps ({2 * self.control_dt:g} s at decimation {config.decimation} x "
+                f"timestep {self.dt:g} s): the controller could not follow swing and stance"
+            )
+        _check_memory(self.model, config, num_envs)
         self.sim = BatchedSim(self.model, num_envs, config.num_threads)
         joint_adr = [int(self.model.joint(name).qposadr[0]) for name in JOINT_NAMES]
         self._joint_qpos = slice(joint_adr[0], joint_adr[0] + len(joint_adr))
@@ -222,7 +235,11 @@ class ResidualWalkCore:
 
     def _settle_fresh(self, sim: BatchedSim, ids: np.ndarray, randomize: bool) -> None:
         """Place fresh starts in rows ``ids`` of ``sim`` and settle them; redraw
-        the ones that fall or diverge (up to SETTLE_ATTEMPTS tries)."""
+        the ones that fall or diverge (up to SETTLE_ATTEMPTS tries).
+
+        Raises:
+            RuntimeError: if some starts still fall or diverge after every attempt.
+        """
         todo = ids
         for _ in range(SETTLE_ATTEMPTS):
             keys = self._seed + self._next_start + np.arange(todo.size, dtype=np.int64)
@@ -230,22 +247,39 @@ class ResidualWalkCore:
             self._place_starts(sim, todo, keys, randomize)
             todo = todo[self._settle(sim, todo)]
             if todo.size == 0:
-                break
+                return
+        cfg = self.config
+        raise RuntimeError(
+            f"{todo.size} of {ids.size} starts fell or diverged while settling, in each of "
+            f"{SETTLE_ATTEMPTS} attempts: the starts are too hard for the base gait "
+            f"(randomize={randomize}, tilt_noise={cfg.tilt_noise}, yaw_noise={cfg.yaw_noise}, "
+            f"position_noise={cfg.position_noise}, world {cfg.model_path}); reduce the noise"
+        )
 
     def _ids(self, env_ids: np.ndarray | Tensor | None) -> np.ndarray:
+        """Sorted unique int32 row indices from ids or a boolean mask of length N."""
         if env_ids is None:
             return np.arange(self.num_envs, dtype=np.int32)
         if isinstance(env_ids, Tensor):
             env_ids = env_ids.detach().cpu().numpy()
         ids = np.asarray(env_ids)
         if ids.dtype == bool:
+            if ids.shape not in ((self.num_envs,), (self.num_envs, 1)):
+                raise ValueError(
+                    f"a boolean env mask must have shape ({self.num_envs},), got {ids.shape}"
+                )
             ids = np.flatnonzero(ids)
-        ids = ids.astype(np.int32, copy=False).reshape(-1)
+        elif not np.issubdtype(ids.dtype, np.integer):
+            raise ValueError(
+                f"env ids must be integers or a boolean mask, got dtype {ids.dtype} "
+                f"({ids.reshape(-1)[:8].tolist()})"
+            )
+        ids = ids.reshape(-1)
         if ids.size and (ids.min() < 0 or ids.max() >= self.num_envs):
             raise ValueError(f"env ids must be in [0, {self.num_envs}), got {ids.tolist()}")
         if ids.size > 1 and not (np.diff(ids) > 0).all():
             raise ValueError(f"env ids must be sorted and unique, got {ids.tolist()}")
-        return np.ascontiguousarray(ids)
+        return np.ascontiguousarray(ids.astype(np.int32))
 
     def _place_starts(
         self, sim: BatchedSim, ids: np.ndarray, keys: np.ndarray, randomize: bool
@@ -359,13 +393,29 @@ class ResidualWalkCore:
         return StepResult(obs, reward, terms, terminated, truncated, diverged)
 
     def check_action(self, action: Tensor | np.ndarray) -> Tensor:
-        """Validate and clip an action batch. Returns float64 (N, 12)."""
+        """Validate and clip an action batch. Returns float64 (N, 12).
+
+        Raises:
+            ValueError: naming the action's wrong shape, dtype, device, a
+                non-finite value, or that it requires grad.
+        """
+        if isinstance(action, Tensor):
+            if action.requires_grad:
+                raise ValueError(
+                    "action requires grad: pass action.detach() (the simulation is not "
+                    "differentiable), or act under torch.no_grad()"
+                )
+            if action.device.type != "cpu":
+                raise ValueError(f"action must be on the CPU, got device {action.device}")
         action = torch.as_tensor(action)
         expected = (self.num_envs, ACTION_DIM)
         if tuple(action.shape) != expected:
             raise ValueError(f"action must have shape {expected}, got {tuple(action.shape)}")
-        if not (action.dtype.is_floating_point or action.dtype in (torch.int32, torch.int64)):
-            raise ValueError(f"action must be numeric, got dtype {action.dtype}")
+        if action.dtype not in (torch.float32, torch.float64, torch.int32, torch.int64):
+            raise ValueError(
+                f"action must be float32 or float64 (or integer), got dtype {action.dtype}: "
+                "convert it with action.float()"
+            )
         action = action.to(torch.float64)
         finite = torch.isfinite(action)
         if not bool(finite.all()):
@@ -381,8 +431,14 @@ class ResidualWalkCore:
         """Scale the heightfield's roughness for all envs (0 flat .. 1 full).
 
         Takes effect immediately for contacts; new starts are placed on the new ground.
+
+        Raises:
+            ValueError: naming the world, if its ground is a plane.
         """
-        self.terrain.set_scale(self.model, scale)
+        try:
+            self.terrain.set_scale(self.model, scale)
+        except ValueError as error:
+            raise ValueError(f"{self.config.model_path}: {error}") from None
         self.sim.set_model(self.model)
         if self._pool is not None:
             self._pool.set_model(self.model)
@@ -417,6 +473,37 @@ class ResidualWalkCore:
             length.clamp(min=1.0) * self.control_dt
         )
         return log
+
+
+def _check_memory(model, config: EnvConfig, num_envs: int) -> None:
+    """Raise MemoryError at once if N envs would not fit, instead of failing mid-build.
+
+    A conservative estimate per env: its integration state and sensor rows (in the
+    batch, and in the pool), the torch buffers, and ~20 temporaries of each control
+    period's (K, 4, 3) targets in the step (measured: ~9 KB per env at K = 10).
+    """
+    nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_INTEGRATION.value)
+    row = 8 * (nstate + model.nsensordata + 4 * OBS_DIM)
+    per_env = row + 8 * 20 * config.decimation * ACTION_DIM
+    needed = num_envs * per_env + config.settle_pool * row
+    available = _available_memory()
+    if available is not None and needed > available:
+        raise MemoryError(
+            f"num_envs={num_envs} needs about {needed / 2**30:.1f} GiB ({per_env / 1024:.1f} KiB "
+            f"per env) but {available / 2**30:.1f} GiB is available"
+        )
+
+
+def _available_memory() -> int | None:
+    """MemAvailable from /proc/meminfo, in bytes (None where there is none)."""
+    try:
+        with open("/proc/meminfo") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
 
 
 def _observation(sensors: Tensor) -> Tensor:

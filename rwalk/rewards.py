@@ -7,7 +7,7 @@ weights, and the reward is exactly the sum of the weighted terms.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import torch
 from torch import Tensor
@@ -32,6 +32,16 @@ class RewardWeights:
     """Per-leg score when a swing foot is in the air or a stance foot is down."""
     contact_mismatch: float = -0.2
     """Per-leg score otherwise."""
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if (
+                not isinstance(value, (int, float))
+                or isinstance(value, bool)
+                or not math.isfinite(value)
+            ):
+                raise ValueError(f"RewardWeights.{f.name} must be a finite number, got {value!r}")
 
 
 def quat_to_rpy(quat: Tensor) -> Tensor:

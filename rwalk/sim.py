@@ -12,10 +12,24 @@ count.
 from __future__ import annotations
 
 import contextlib
+import logging
 
 import mujoco
 import numpy as np
 from mujoco import batch as mjbatch
+
+#: MuJoCo's warnings (e.g. an unstable simulation) go here instead of MUJOCO_LOG.TXT.
+MUJOCO_LOGGER = logging.getLogger("rwalk.mujoco")
+
+
+def _log_mujoco_warning(message: str) -> None:
+    MUJOCO_LOGGER.warning(message)
+
+
+# Without a handler MuJoCo appends every warning to MUJOCO_LOG.TXT in the working folder,
+# unbounded. A handler the user installed first is left in place.
+if mujoco.get_mju_user_warning() is None:
+    mujoco.set_mju_user_warning(_log_mujoco_warning)
 
 
 class BatchedSim:

@@ -114,7 +114,8 @@ class Terrain:
         geom = model.geom(GROUND_GEOM)
         self.origin = np.array(geom.pos, dtype=float)
         self.is_heightfield = int(geom.type[0]) == mujoco.mjtGeom.mjGEOM_HFIELD
-        self.scale = 1.0
+        self.scale = 1.0 if self.is_heightfield else 0.0
+        """Roughness in force: 0 flat .. 1 as stored; always 0 for a plane."""
         if self.is_heightfield:
             self.hfield_id = int(geom.dataid[0])
             rows = int(model.hfield_nrow[self.hfield_id])
@@ -126,13 +127,21 @@ class Terrain:
             self.heights = self.base.copy()
 
     def set_scale(self, model: mujoco.MjModel, scale: float) -> None:
-        """Scale the roughness in ``model`` (0 flat .. 1 as stored). Planes stay flat."""
+        """Scale the roughness in ``model`` (0 flat .. 1 as stored).
+
+        Raises:
+            ValueError: for a scale outside [0, 1], or on a plane (nothing to scale).
+        """
         if not (isinstance(scale, (int, float)) and 0.0 <= scale <= 1.0):
             raise ValueError(f"terrain scale must be a number in [0, 1], got {scale!r}")
+        if not self.is_heightfield:
+            raise ValueError(
+                f"the ground is a plane, not a heightfield: terrain scale {scale!r} would "
+                "change nothing (use a world with a heightfield, e.g. model/world_train.xml)"
+            )
         self.scale = float(scale)
-        if self.is_heightfield:
-            self.heights = scaled(self.base, self.scale)
-            model.hfield_data[self._slice] = self.heights.ravel()
+        self.heights = scaled(self.base, self.scale)
+        model.hfield_data[self._slice] = self.heights.ravel()
 
     def max_height(self, x: np.ndarray, y: np.ndarray, radius: float) -> np.ndarray:
         """Highest ground point within a square of half-width ``radius`` around each (x, y).

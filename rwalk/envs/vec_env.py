@@ -90,11 +90,18 @@ class ResidualWalkVecEnv(EnvBase):
     # ------------------------------------------------------------------ EnvBase
     def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
         mask = None if tensordict is None else tensordict.get("_reset", None)
+        n = self.num_envs
+        if mask is not None and (
+            mask.dtype != torch.bool or tuple(mask.shape) not in ((n,), (n, 1))
+        ):
+            raise ValueError(
+                f'"_reset" must be a boolean mask of shape ({n},) or ({n}, 1), got dtype '
+                f"{mask.dtype} and shape {tuple(mask.shape)}"
+            )
         if mask is None or not self.core.started:
             self.core.reset()
         else:
             self.core.reset(mask.reshape(-1))
-        n = self.num_envs
         zeros = torch.zeros(n, dtype=torch.float64)
         no = torch.zeros(n, dtype=torch.bool)
         out = self._outputs(dict.fromkeys(TERM_NAMES, zeros), zeros, no, no, no)
