@@ -13,7 +13,6 @@ that falls or diverges while settling is redrawn.
 
 from __future__ import annotations
 
-import math
 import os
 import warnings
 from typing import NamedTuple
@@ -22,7 +21,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from rwalk import rng
+from rwalk import exactmath, rng
 from rwalk.assets import load_model
 from rwalk.config import EnvConfig
 from rwalk.constants import (
@@ -235,7 +234,7 @@ class ResidualWalkCore:
         qpos[ids, 0] = x
         qpos[ids, 1] = y
         qpos[ids, 2] = z
-        qpos[ids, 3:7] = _rpy_to_quat(roll, pitch, yaw)
+        qpos[ids, 3:7] = _rpy_to_quat(roll, pitch, yaw).numpy()
         qpos[ids, self._joint_qpos] = self._stand_joints
 
     def _settle(self, sim: BatchedSim, ids: np.ndarray) -> np.ndarray:
@@ -351,9 +350,8 @@ class ResidualWalkCore:
         return self.controller.phase(self.tick)
 
     def phase_features(self) -> Tensor:
-        """(sin 2πφ, cos 2πφ) of the gait phase. Shape: (N, 2)."""
-        angle = 2.0 * math.pi * self.phase
-        return torch.stack((torch.sin(angle), torch.cos(angle)), dim=-1)
+        """(sin 2πφ, cos 2πφ) of the gait phase, tabulated per tick. Shape: (N, 2)."""
+        return self.controller.phase_features(self.tick)
 
     @property
     def settle_share(self) -> float:
@@ -419,17 +417,17 @@ class _StartPool:
         self.uses_left[:] = 0
 
 
-def _rpy_to_quat(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """(w, x, y, z) quaternions from ZYX Euler angles. Shape: (M,)x3 -> (M, 4)."""
-    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
-    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
-    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
-    return np.stack(
+def _rpy_to_quat(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> Tensor:
+    """(w, x, y, z) quaternions from ZYX Euler angles, with ``rwalk.exactmath``
+    (the same bits on any CPU). Shape: (M,)x3 -> (M, 4) float64."""
+    half = [torch.as_tensor(np.asarray(a, dtype=np.float64)) * 0.5 for a in (roll, pitch, yaw)]
+    (sr, sp, sy), (cr, cp, cy) = ([f(a) for a in half] for f in (exactmath.sin, exactmath.cos))
+    return torch.stack(
         (
             cr * cp * cy + sr * sp * sy,
             sr * cp * cy - cr * sp * sy,
             cr * sp * cy + sr * cp * sy,
             cr * cp * sy - sr * sp * cy,
         ),
-        axis=-1,
+        dim=-1,
     )
