@@ -9,6 +9,19 @@ Reset: each start is drawn from its own counter-based key, placed above the
 ground, then settled with zero residuals for ``settle_steps`` env steps while
 the gait phase advances, all resetting envs in one batched rollout. A start
 that falls or diverges while settling is redrawn.
+
+Seeds: env i of a core seeded s draws its k-th start (redraws included) from the
+key (s + i mod 2^64, "start_pose", k) of ``rwalk.rng``; the k-th refill of
+settled-start pool entry j draws like an env N + j would. So env i starts
+exactly like a single env seeded s + i at every reset settled in place (a
+partial reset served from the pool takes the pool's next entry instead), and
+different seeds draw independent starts.
+
+Exactness: gait, IK, observation, reward and termination use only elementwise
+IEEE arithmetic and ``rwalk.exactmath``, so env i of a batch steps bit for bit
+like a single env with the same state and actions, on any x86-64 CPU; the
+physics is MuJoCo's, deterministic per simulation (see ``rwalk.exactmath`` for
+what lies outside our control).
 """
 
 from __future__ import annotations
@@ -47,6 +60,8 @@ SETTLE_CTRL_BUDGET = 2_000_000
 START_CLEARANCE = 0.004
 #: Half-width of the square searched for the highest ground under a start.
 FOOTPRINT_RADIUS = 0.13
+#: Random stream of the start poses (see ``rwalk.rng``).
+START_STREAM = "start_pose"
 
 
 class StepResult(NamedTuple):
@@ -72,8 +87,9 @@ class ResidualWalkCore:
     Args:
         config: the task.
         num_envs: N.
-        seed: base seed; env i's k-th start uses key seed + (start counter).
-            None draws a seed from the OS.
+        seed: base seed in [0, 2^64); env i's k-th start uses the key
+            (seed + i mod 2^64, START_STREAM, k), the same as a single env seeded
+            seed + i. None draws a seed from the OS.
     """
 
     def __init__(self, config: EnvConfig, num_envs: int, seed: int | None = None) -> None:
@@ -129,13 +145,26 @@ class ResidualWalkCore:
 
     # ------------------------------------------------------------------ seeding
     def seed(self, seed: int | None) -> int:
-        """Restart the start counter from ``seed``; returns the seed used."""
+        """Key the starts by ``seed`` and restart every env's start counter.
+
+        Returns:
+            The seed used (drawn from the OS for None).
+
+        Raises:
+            ValueError: ``seed`` is not an integer in [0, 2^64) (naming it).
+        """
         if seed is None:
-            seed = int.from_bytes(os.urandom(4), "little")
-        if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
-            raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
+            seed = int.from_bytes(os.urandom(8), "little")
+        if (
+            not isinstance(seed, (int, np.integer))
+            or isinstance(seed, bool)
+            or not 0 <= int(seed) < rng.SEED_LIMIT
+        ):
+            raise ValueError(f"seed must be an integer in [0, 2**64) or None, got {seed!r}")
         self._seed = int(seed)
-        self._next_start = 0
+        pool_size = self._pool.size if self._pool is not None else 0
+        self._starts_drawn = np.zeros(self.num_envs + pool_size, dtype=np.uint64)
+        """Starts drawn so far by each env, then by each pool entry. Shape: (N + pool,)."""
         return self._seed
 
     # ------------------------------------------------------------------ reset
@@ -184,10 +213,14 @@ class ResidualWalkCore:
     def _settle_fresh(self, sim: BatchedSim, ids: np.ndarray, randomize: bool) -> None:
         """Place fresh starts in rows ``ids`` of ``sim`` and settle them; redraw
         the ones that fall or diverge (up to SETTLE_ATTEMPTS tries)."""
+        # Env i draws as seed + i, pool entry j as seed + N + j (see the module docstring).
+        first = 0 if sim is self.sim else self.num_envs
         todo = ids
         for _ in range(SETTLE_ATTEMPTS):
-            keys = self._seed + self._next_start + np.arange(todo.size, dtype=np.int64)
-            self._next_start += todo.size
+            rows = todo.astype(np.uint64) + np.uint64(first)
+            seeds = np.uint64(self._seed) + rows  # wraps modulo 2^64
+            keys = rng.keys(seeds, START_STREAM, self._starts_drawn[rows])
+            self._starts_drawn[rows] += np.uint64(1)
             self._place_starts(sim, todo, keys, randomize)
             todo = todo[self._settle(sim, todo)]
             if todo.size == 0:

@@ -5,6 +5,7 @@ vector kernels rounded differently would fail them. The subprocess tests rerun
 the same computations under torch's other CPU kernel sets (ATEN_CPU_CAPABILITY).
 """
 
+import dataclasses
 import json
 import math
 import os
@@ -15,11 +16,14 @@ import mpmath
 import pytest
 import torch
 
-from rwalk import exactmath
+from rwalk import EnvConfig, ResidualWalkCore, exactmath
 from rwalk.gait import BezierGaitController
 from rwalk.kinematics import LegGeometry, leg_ik
+from rwalk.rewards import TERM_NAMES
 
 F64 = torch.float64
+# Rough world, short settles, perturbed starts, one physics thread.
+CONFIG = dataclasses.replace(EnvConfig(), settle_steps=5, randomize=True, num_threads=1)
 
 
 # ------------------------------------------------------------------ exactmath accuracy
@@ -220,3 +224,58 @@ def test_ik_row_is_the_same_in_any_batch():
     for row in (0, 1, 17, 4096):
         alone, alone_ok = leg_ik(feet[row : row + 1], LegGeometry())
         assert torch.equal(alone[0], joints[row]) and torch.equal(alone_ok[0], ok[row])
+
+
+def _run(num_envs: int, seed: int, steps: int) -> dict[str, torch.Tensor]:
+    """Random-action steps of a core, resetting envs that fall and, on a schedule, others.
+
+    Env i's actions and reset schedule are keyed by its own seed, seed + i.
+    Returns per-step traces. Each shape: (T, N, ...).
+    """
+    core = ResidualWalkCore(CONFIG, num_envs, seed=seed)
+    core.reset()
+    env_seeds = seed + torch.arange(num_envs)
+    gens = [torch.Generator().manual_seed(seed + i) for i in range(num_envs)]
+    trace: dict[str, list[torch.Tensor]] = {"obs": [], "reward": [], "terminated": []}
+    trace |= {name: [] for name in TERM_NAMES}
+    for step in range(steps):
+        action = torch.stack([torch.rand(12, generator=g, dtype=F64) * 2.0 - 1.0 for g in gens])
+        result = core.step(action)
+        trace["reward"].append(result.reward.clone())
+        trace["terminated"].append(result.terminated.clone())
+        for name, term in result.terms.items():
+            trace[name].append(term.clone())
+        done = result.terminated | ((step + env_seeds) % 41 == 0)
+        if bool(done.any()):
+            core.reset(done.nonzero()[:, 0])
+        trace["obs"].append(core.obs.clone())  # after any reset
+    return {name: torch.stack(values) for name, values in trace.items()}
+
+
+def _check_envs_step_like_single_envs(
+    num_envs: int, steps: int, envs: list[int], seed: int = 11, falls: bool = False
+):
+    batch = _run(num_envs, seed, steps)
+    if falls:
+        assert batch["terminated"].any(), "no env fell: resets after falls went untested"
+    for i in envs:
+        single = _run(1, seed + i, steps)
+        for name, values in single.items():
+            assert torch.equal(batch[name][:, i], values[:, 0]), (num_envs, i, name)
+
+
+@pytest.mark.parametrize(("num_envs", "steps", "envs"), [(2, 150, [1]), (7, 150, [0, 6])])
+def test_env_i_of_a_batch_steps_like_a_single_env(num_envs, steps, envs):
+    _check_envs_step_like_single_envs(num_envs, steps, envs)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("num_envs", [2, 7, 64])
+def test_whole_episodes_are_bit_exact_at_any_batch_size(num_envs):
+    envs = sorted({0, num_envs // 2, num_envs - 1})
+    _check_envs_step_like_single_envs(num_envs, 1000, envs, falls=True)
+
+
+@pytest.mark.slow
+def test_whole_episodes_are_bit_exact_in_a_batch_of_1000():
+    _check_envs_step_like_single_envs(1000, 1000, [0, 999], falls=True)
