@@ -9,11 +9,23 @@ Reset: each start is drawn from its own counter-based key, placed above the
 ground, then settled with zero residuals for ``settle_steps`` env steps while
 the gait phase advances, all resetting envs in one batched rollout. A start
 that falls or diverges while settling is redrawn.
+
+Seeds: env i of a core seeded s draws its k-th start (redraws included) from the
+key (s + i mod 2^64, "start_pose", k) of ``rwalk.rng``; the k-th refill of
+settled-start pool entry j draws like an env N + j would. So env i starts
+exactly like a single env seeded s + i at every reset settled in place (a
+partial reset served from the pool takes the pool's next entry instead), and
+different seeds draw independent starts.
+
+Exactness: gait, IK, observation, reward and termination use only elementwise
+IEEE arithmetic and ``rwalk.exactmath``, so env i of a batch steps bit for bit
+like a single env with the same state and actions, on any x86-64 CPU; the
+physics is MuJoCo's, deterministic per simulation (see ``rwalk.exactmath`` for
+what lies outside our control).
 """
 
 from __future__ import annotations
 
-import math
 import os
 import warnings
 from collections.abc import Callable
@@ -24,7 +36,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from rwalk import rng
+from rwalk import exactmath, rng
 from rwalk.assets import load_model
 from rwalk.config import EnvConfig
 from rwalk.constants import (
@@ -50,6 +62,8 @@ SETTLE_CTRL_BUDGET = 2_000_000
 START_CLEARANCE = 0.004
 #: Half-width of the square searched for the highest ground under a start.
 FOOTPRINT_RADIUS = 0.13
+#: Random stream of the start poses (see ``rwalk.rng``).
+START_STREAM = "start_pose"
 
 
 class StepResult(NamedTuple):
@@ -75,8 +89,9 @@ class ResidualWalkCore:
     Args:
         config: the task.
         num_envs: N.
-        seed: base seed; env i's k-th start uses key seed + (start counter).
-            None draws a seed from the OS.
+        seed: base seed in [0, 2^64); env i's k-th start uses the key
+            (seed + i mod 2^64, START_STREAM, k), the same as a single env seeded
+            seed + i. None draws a seed from the OS.
     """
 
     def __init__(self, config: EnvConfig, num_envs: int, seed: int | None = None) -> None:
@@ -92,7 +107,7 @@ class ResidualWalkCore:
             self.terrain.set_scale(self.model, config.terrain_scale)
         self.geometry = LegGeometry.from_model(self.model)
         self.dt = float(self.model.opt.timestep)
-        if not (self.dt > 0 and math.isfinite(self.dt)):
+        if not (self.dt > 0 and np.isfinite(self.dt)):
             raise ValueError(f"{config.model_path}: option timestep must be > 0, got {self.dt!r}")
         self.control_dt = self.dt * config.decimation
         self.controller = BezierGaitController(config.gait, self.geometry, dt=self.dt)
@@ -180,13 +195,26 @@ class ResidualWalkCore:
 
     # ------------------------------------------------------------------ seeding
     def seed(self, seed: int | None) -> int:
-        """Restart the start counter from ``seed``; returns the seed used."""
+        """Key the starts by ``seed`` and restart every env's start counter.
+
+        Returns:
+            The seed used (drawn from the OS for None).
+
+        Raises:
+            ValueError: ``seed`` is not an integer in [0, 2^64) (naming it).
+        """
         if seed is None:
-            seed = int.from_bytes(os.urandom(4), "little")
-        if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
-            raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
+            seed = int.from_bytes(os.urandom(8), "little")
+        if (
+            not isinstance(seed, (int, np.integer))
+            or isinstance(seed, bool)
+            or not 0 <= int(seed) < rng.SEED_LIMIT
+        ):
+            raise ValueError(f"seed must be an integer in [0, 2**64) or None, got {seed!r}")
         self._seed = int(seed)
-        self._next_start = 0
+        pool_size = self._pool.size if self._pool is not None else 0
+        self._starts_drawn = np.zeros(self.num_envs + pool_size, dtype=np.uint64)
+        """Starts drawn so far by each env, then by each pool entry. Shape: (N + pool,)."""
         return self._seed
 
     # ------------------------------------------------------------------ reset
@@ -240,10 +268,14 @@ class ResidualWalkCore:
         Raises:
             RuntimeError: if some starts still fall or diverge after every attempt.
         """
+        # Env i draws as seed + i, pool entry j as seed + N + j (see the module docstring).
+        first = 0 if sim is self.sim else self.num_envs
         todo = ids
         for _ in range(SETTLE_ATTEMPTS):
-            keys = self._seed + self._next_start + np.arange(todo.size, dtype=np.int64)
-            self._next_start += todo.size
+            rows = todo.astype(np.uint64) + np.uint64(first)
+            seeds = np.uint64(self._seed) + rows  # wraps modulo 2^64
+            keys = rng.keys(seeds, START_STREAM, self._starts_drawn[rows])
+            self._starts_drawn[rows] += np.uint64(1)
             self._place_starts(sim, todo, keys, randomize)
             todo = todo[self._settle(sim, todo)]
             if todo.size == 0:
@@ -307,7 +339,7 @@ class ResidualWalkCore:
         qpos[ids, 0] = x
         qpos[ids, 1] = y
         qpos[ids, 2] = z
-        qpos[ids, 3:7] = _rpy_to_quat(roll, pitch, yaw)
+        qpos[ids, 3:7] = _rpy_to_quat(roll, pitch, yaw).numpy()
         qpos[ids, self._joint_qpos] = self._stand_joints
 
     def _settle(self, sim: BatchedSim, ids: np.ndarray) -> np.ndarray:
@@ -449,9 +481,8 @@ class ResidualWalkCore:
         return self.controller.phase(self.tick)
 
     def phase_features(self) -> Tensor:
-        """(sin 2πφ, cos 2πφ) of the gait phase. Shape: (N, 2)."""
-        angle = 2.0 * math.pi * self.phase
-        return torch.stack((torch.sin(angle), torch.cos(angle)), dim=-1)
+        """(sin 2πφ, cos 2πφ) of the gait phase, tabulated per tick. Shape: (N, 2)."""
+        return self.controller.phase_features(self.tick)
 
     @property
     def settle_share(self) -> float:
@@ -553,17 +584,17 @@ class _StartPool:
         self.uses_left[:] = 0
 
 
-def _rpy_to_quat(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """(w, x, y, z) quaternions from ZYX Euler angles. Shape: (M,)x3 -> (M, 4)."""
-    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
-    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
-    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
-    return np.stack(
+def _rpy_to_quat(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> Tensor:
+    """(w, x, y, z) quaternions from ZYX Euler angles, with ``rwalk.exactmath``
+    (the same bits on any CPU). Shape: (M,)x3 -> (M, 4) float64."""
+    half = [torch.as_tensor(np.asarray(a, dtype=np.float64)) * 0.5 for a in (roll, pitch, yaw)]
+    (sr, sp, sy), (cr, cp, cy) = ([f(a) for a in half] for f in (exactmath.sin, exactmath.cos))
+    return torch.stack(
         (
             cr * cp * cy + sr * sp * sy,
             sr * cp * cy - cr * sp * sy,
             cr * sp * cy + sr * cp * sy,
             cr * cp * sy - sr * sp * cy,
         ),
-        axis=-1,
+        dim=-1,
     )

@@ -2,7 +2,9 @@
 
 The gait is open loop in its phase: a function of phase alone, so the foot
 targets of a whole control period (K physics substeps) for N envs come out of
-one vectorised call. Each leg alternates a straight stance sweep (front to
+one vectorised call. Everything is built from elementwise IEEE arithmetic and
+``rwalk.exactmath``, so the tables and targets are the same bits on any CPU and
+for any batch size. Each leg alternates a straight stance sweep (front to
 back, on the stance line) and a Bézier swing (back to front, above it). The
 diagonal pairs FL+RR and FR+RL are half a cycle apart.
 
@@ -15,12 +17,14 @@ velocity.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, fields
 
 import torch
 from torch import Tensor
 
+from rwalk import exactmath
 from rwalk.kinematics import LegGeometry, leg_ik
 
 #: Phase offset of each leg (FL, FR, RL, RR): diagonal pairs in step.
@@ -84,7 +88,10 @@ class GaitParameters:
 
 
 def bernstein_curve(points: Tensor, t: Tensor) -> Tensor:
-    """Evaluate a Bézier curve.
+    """Evaluate a Bézier curve by de Casteljau's construction.
+
+    Only elementwise multiplies and adds (no pow, no matmul), so every point is
+    the same bits on any CPU and for any shape of ``t``.
 
     Args:
         points: control points. Shape: (n + 1, D).
@@ -93,12 +100,12 @@ def bernstein_curve(points: Tensor, t: Tensor) -> Tensor:
     Returns:
         Points on the curve. Shape: (..., D).
     """
-    n = points.shape[0] - 1
-    i = torch.arange(n + 1, dtype=t.dtype, device=t.device)
-    binom = torch.tensor([math.comb(n, k) for k in range(n + 1)], dtype=t.dtype, device=t.device)
     tt = t.unsqueeze(-1)
-    weights = binom * tt**i * (1.0 - tt) ** (n - i)
-    return weights @ points.to(t.dtype)
+    ut = 1.0 - tt
+    level = [point.to(t.dtype) for point in points]
+    while len(level) > 1:
+        level = [ut * a + tt * b for a, b in itertools.pairwise(level)]
+    return level[0].expand(*t.shape, points.shape[1]).clone()
 
 
 def swing_control_points(duty_factor: float) -> Tensor:
@@ -168,6 +175,9 @@ class BezierGaitController:
         ticks = torch.arange(self.period, dtype=dtype)
         self.target_table, self.swing_table = self.foot_targets(ticks / self.period)
         """Base foot targets and swing flags at each tick. Shapes: (P, 4, 3), (P, 4)."""
+        angle = 2.0 * math.pi * self.phase(torch.arange(self.period))
+        self.phase_table = torch.stack((exactmath.sin(angle), exactmath.cos(angle)), -1)
+        """(sin 2πφ, cos 2πφ) of the phase φ at each tick. Shape: (P, 2) float64."""
 
     def _check_reachable(self) -> None:
         """Raise ValueError if the stance line cannot be reached (an impossible gait)."""
@@ -189,9 +199,14 @@ class BezierGaitController:
         """Gait phase in [0, 1) of integer ticks (substeps since phase 0). Same shape."""
         return torch.remainder(tick, self.period).to(self.dtype) / self.period
 
+    def phase_features(self, tick: Tensor) -> Tensor:
+        """(sin 2πφ, cos 2πφ) of the gait phase φ at integer ticks. (...,) -> (..., 2)."""
+        return self.phase_table[torch.remainder(tick, self.period)]
+
     def leg_phases(self, phase: Tensor) -> Tensor:
         """Each leg's phase in [0, 1). (...,) -> (..., 4). Stance is [0, duty)."""
-        return torch.remainder(phase.unsqueeze(-1) + self.leg_offsets, 1.0)
+        shifted = phase.unsqueeze(-1) + self.leg_offsets
+        return shifted - torch.floor(shifted)  # exact, unlike a float remainder kernel
 
     def is_swing(self, tick: Tensor) -> Tensor:
         """Swing flags per leg at integer ticks. (...,) -> (..., 4) bool."""

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from rwalk import exactmath
 from rwalk.constants import LEG_NAMES, TORSO_BODY
 
 
@@ -96,8 +97,10 @@ class LegGeometry:
 
 
 def _knee_reach(geometry: LegGeometry, knee: float) -> float:
+    # exactmath's cos (math.cos is the platform's libm); Python's float + x sqrt are IEEE.
     l1, l2 = geometry.thigh_length, geometry.shin_length
-    return math.sqrt(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * math.cos(knee))
+    cos_knee = float(exactmath.cos(torch.tensor(knee, dtype=torch.float64)))
+    return math.sqrt(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * cos_knee)
 
 
 @functools.lru_cache(maxsize=16)
@@ -117,18 +120,23 @@ def leg_fk(joints: Tensor, geometry: LegGeometry) -> Tensor:
         geometry: the legs.
 
     Returns:
-        Foot positions in each leg's hip frame. Shape: (..., 4, 3).
+        Foot positions in each leg's hip frame, computed in float64 with
+        ``rwalk.exactmath`` (the same bits on any CPU). Shape: (..., 4, 3).
     """
+    dtype = joints.dtype
+    joints = joints.to(torch.float64)
     q1, q2, q3 = joints.unbind(-1)
     l1, l2 = geometry.thigh_length, geometry.shin_length
     offset = _constants(geometry, joints.dtype)[0]
     # Foot in the leg plane (hip-joint frame before abduction).
-    x = -l1 * torch.sin(q2) - l2 * torch.sin(q2 + q3)
-    z = -l1 * torch.cos(q2) - l2 * torch.cos(q2 + q3)
-    c, s = torch.cos(q1), torch.sin(q1)
+    s2, c2 = exactmath.sin(q2), exactmath.cos(q2)
+    s23, c23 = exactmath.sin(q2 + q3), exactmath.cos(q2 + q3)
+    x = -l1 * s2 - l2 * s23
+    z = -l1 * c2 - l2 * c23
+    c, s = exactmath.cos(q1), exactmath.sin(q1)
     y_out = offset * c - z * s
     z_out = offset * s + z * c
-    return torch.stack((x, y_out, z_out), dim=-1)
+    return torch.stack((x, y_out, z_out), dim=-1).to(dtype)
 
 
 def leg_ik(feet: Tensor, geometry: LegGeometry) -> tuple[Tensor, Tensor]:
@@ -143,12 +151,17 @@ def leg_ik(feet: Tensor, geometry: LegGeometry) -> tuple[Tensor, Tensor]:
         geometry: the legs.
 
     Returns:
-        joints: (abduction, hip, knee) per leg. Shape: (..., 4, 3).
+        joints: (abduction, hip, knee) per leg, computed in float64: each row
+            depends only on its own target, bit for bit, on any CPU. Shape: (..., 4, 3).
         reachable: True where the target was reached exactly. Shape: (..., 4).
     """
     l1, l2 = geometry.thigh_length, geometry.shin_length
+    dtype = feet.dtype
+    feet = feet.to(torch.float64)
     offset, lower, upper = _constants(geometry, feet.dtype)
     px, py, pz = feet.unbind(-1)
+    # Elementwise +, -, x, /, sqrt and exactmath only (one op per call, no reductions):
+    # each row's result is the same bits whatever the batch size and CPU.
 
     # Abduction: the foot lies in the plane swept by the thigh, |offset| from the axis.
     r_yz = torch.sqrt(py * py + pz * pz)
@@ -156,8 +169,10 @@ def leg_ik(feet: Tensor, geometry: LegGeometry) -> tuple[Tensor, Tensor]:
     ok = r_yz >= min_r
     r_yz = torch.maximum(r_yz, min_r)
     z_plane = -torch.sqrt(torch.clamp(r_yz * r_yz - offset * offset, min=0.0))
-    q1 = torch.atan2(pz, py) - torch.atan2(z_plane, offset)
-    q1 = torch.remainder(q1 + math.pi, 2.0 * math.pi) - math.pi
+    # q1 = angle(py, pz) - angle(offset, z_plane), in [-π, π]: the angle of the
+    # product of (py + i pz) and the conjugate of (offset + i z_plane).
+    q1_y = pz * offset - py * z_plane
+    q1_x = py * offset + pz * z_plane
 
     # Hip and knee: planar two-link problem, distance clamped to what the knee allows.
     dist = torch.sqrt(px * px + z_plane * z_plane)
@@ -165,12 +180,20 @@ def leg_ik(feet: Tensor, geometry: LegGeometry) -> tuple[Tensor, Tensor]:
     ok = ok & (dist >= near * (1.0 - 1e-9)) & (dist <= far * (1.0 + 1e-9))
     dist = torch.clamp(dist, near, far)
     cos_knee = (dist * dist - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
-    q3 = -torch.acos(torch.clamp(cos_knee, -1.0, 1.0))
-    # Angle of the hip->foot line from straight down, positive backwards.
-    foot_angle = torch.atan2(-px, -z_plane)
-    q2 = foot_angle - torch.atan2(l2 * torch.sin(q3), l1 + l2 * torch.cos(q3))
+    cos_knee = torch.clamp(cos_knee, -1.0, 1.0)
+    # q3 = -acos(cos_knee); its sine is -sqrt(1 - cos²), taken as acos takes it.
+    sin_knee = torch.sqrt((1.0 - cos_knee) * (1.0 + cos_knee))
+    # q2 = (angle of the hip->foot line from straight down, positive backwards)
+    #      - (angle of the foot seen from the hip in the thigh's frame).
+    # All four angles in one atan2 call (per-call overhead dominates small batches).
+    angles = exactmath.atan2(
+        torch.stack((q1_y, sin_knee, -px, -l2 * sin_knee), dim=-1),
+        torch.stack((q1_x, cos_knee, -z_plane, l1 + l2 * cos_knee), dim=-1),
+    )
+    q1, q3 = angles[..., 0], -angles[..., 1]
+    q2 = angles[..., 2] - angles[..., 3]
 
     joints = torch.stack((q1, q2, q3), dim=-1)
     # Rounding can put a target exactly on a limit a hair outside it: tolerate 1e-9 rad.
     ok = ok & ((joints >= lower - 1e-9) & (joints <= upper + 1e-9)).all(dim=-1)
-    return torch.clamp(joints, lower, upper), ok
+    return torch.clamp(joints, lower, upper).to(dtype), ok

@@ -1,7 +1,10 @@
 """Reward terms and termination as pure torch functions of batched tensors.
 
 Each term returns its unweighted value; ``RewardWeights`` holds the spec's
-weights, and the reward is exactly the sum of the weighted terms.
+weights, and the reward is exactly the sum of the weighted terms. Only
+elementwise IEEE arithmetic and ``rwalk.exactmath`` (no reductions over a
+dimension, whose summation order depends on the tensor's length), so each env's
+terms are the same bits whatever the batch size and CPU.
 """
 
 from __future__ import annotations
@@ -11,6 +14,8 @@ from dataclasses import dataclass, fields
 
 import torch
 from torch import Tensor
+
+from rwalk import exactmath
 
 #: Names of the reward terms, in the order they are reported.
 TERM_NAMES: tuple[str, ...] = ("velocity_tracking", "contact_pattern", "stability", "lateral")
@@ -51,13 +56,19 @@ def quat_to_rpy(quat: Tensor) -> Tensor:
         quat: (w, x, y, z). Shape: (..., 4).
 
     Returns:
-        (roll, pitch, yaw) in radians. Shape: (..., 3).
+        (roll, pitch, yaw) in radians, float64, from ``rwalk.exactmath`` (the same
+        bits on any CPU and in any batch). Shape: (..., 3).
     """
-    w, x, y, z = quat.unbind(-1)
-    roll = torch.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = torch.asin(torch.clamp(2.0 * (w * y - z * x), -1.0, 1.0))
-    yaw = torch.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return torch.stack((roll, pitch, yaw), dim=-1)
+    w, x, y, z = quat.to(torch.float64).unbind(-1)
+    sin_pitch = torch.clamp(2.0 * (w * y - z * x), -1.0, 1.0)
+    # roll, asin(sin_pitch) (as exactmath.asin computes it) and yaw in one atan2 call.
+    numerators = (2.0 * (w * x + y * z), sin_pitch, 2.0 * (w * z + x * y))
+    denominators = (
+        1.0 - 2.0 * (x * x + y * y),
+        torch.sqrt((1.0 - sin_pitch) * (1.0 + sin_pitch)),
+        1.0 - 2.0 * (y * y + z * z),
+    )
+    return exactmath.atan2(torch.stack(numerators, -1), torch.stack(denominators, -1))
 
 
 def velocity_tracking(forward_velocity: Tensor, expected_velocity: float) -> Tensor:
@@ -76,12 +87,14 @@ def contact_pattern(swing: Tensor, contact: Tensor, match: float, mismatch: floa
     """
     ok = swing != contact
     scores = torch.tensor([mismatch, match], dtype=torch.float64, device=ok.device)
-    return scores[ok.long()].sum(dim=-1)
+    leg = scores[ok.long()].unbind(-1)
+    return leg[0] + leg[1] + leg[2] + leg[3]  # left to right, not a length-dependent .sum
 
 
 def stability(rpy: Tensor) -> Tensor:
-    """roll² + pitch² + yaw². Shape: (N, 3) -> (N,)."""
-    return (rpy * rpy).sum(dim=-1)
+    """roll² + pitch² + yaw², added left to right. Shape: (N, 3) -> (N,)."""
+    roll, pitch, yaw = rpy.unbind(-1)
+    return roll * roll + pitch * pitch + yaw * yaw
 
 
 def lateral(y: Tensor, y0: Tensor) -> Tensor:
