@@ -392,3 +392,24 @@ def test_the_console_script_exits_0_after_training(tmp_path):
         cwd=ROOT, capture_output=True, text=True, timeout=300, check=False,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_the_time_budget_does_not_count_building_the_envs_as_an_iteration(tmp_path, monkeypatch):
+    # A 30-minute run stopped after iteration 0: 1.4 minutes of env building were taken
+    # for the time of one iteration, so 25 more looked like 37 minutes.
+    clock = [0.0]
+    monkeypatch.setattr(train.time, "perf_counter", lambda: clock[0])
+    make_env, learn = train.make_env, train.SafeRunner.learn
+
+    def slow_make_env(args):
+        clock[0] += 100.0  # building takes 100 s
+        return make_env(args)
+
+    def learn_one_second_each(self, num_learning_iterations, **kwargs):
+        clock[0] += 1.0 * num_learning_iterations
+        return learn(self, num_learning_iterations, **kwargs)
+
+    monkeypatch.setattr(train, "make_env", slow_make_env)
+    monkeypatch.setattr(train.SafeRunner, "learn", learn_one_second_each)
+    tiny_train(tmp_path, "--max-minutes", "5", "--max-iterations", "10", "--save-interval", "5")
+    assert iterations(tmp_path) == [0, 5, 9]  # 110 s of a 300 s budget: every iteration ran

@@ -316,6 +316,7 @@ def train(args: Args) -> Path:
 
         first = runner.current_learning_iteration
         budget = args.max_minutes * 60.0
+        learning_since = time.perf_counter()  # per-iteration time excludes building the envs
         while runner.current_learning_iteration < args.max_iterations:
             it = runner.current_learning_iteration
             # One learn() call up to the next checkpoint: rsl-rl saves the multiples of
@@ -329,8 +330,9 @@ def train(args: Args) -> Path:
             checkpoint = log_dir / f"model_{last}.pt"
             runner.current_learning_iteration = last + 1  # learn() leaves it at its last one
             done = last + 1 - first
-            elapsed = time.perf_counter() - clock
-            per_iteration = elapsed / done
+            now = time.perf_counter()
+            elapsed = now - clock
+            per_iteration = (now - learning_since) / done
             left = args.max_iterations - (last + 1)
             eta = min(left * per_iteration, max(budget - elapsed, 0.0))
             print(
