@@ -7,8 +7,8 @@
 (``python -m rwalk.runners.play`` in a checkout.) Checkpoints are rsl-rl's, from
 rwalk-train (model_<it>.pt, with the config.json it writes beside them).
 
-Every run uses the same starts (seed --seed, env i gets start key seed + i), so
-the base gait and a policy meet exactly the same episodes. Episodes are the
+Every run uses the same starts (seed --seed: episode i starts like a single env
+seeded --seed + i), so the base gait and a policy meet exactly the same episodes. Episodes are the
 spec's (settle 500 steps, up to 1000 steps) on world_train at full roughness,
 with starts spread over the terrain. Only --video needs OpenGL: with MUJOCO_GL
 unset and no display it takes EGL or OSMesa, whichever loads
@@ -137,7 +137,7 @@ def evaluate(
     """Run one episode in every env of ``env`` (reset first) and summarise.
 
     Args:
-        seed: env i starts from key seed + i, whatever ran before.
+        seed: env i starts like a single env seeded seed + i, whatever ran before.
         policy: callable returning (N, 12) actions for the current state; None = base gait.
         record: callable(step) called after every step (e.g. to grab a video frame).
         progress: callable(steps done, max_episode_steps), e.g. a ``Progress``.
@@ -287,7 +287,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         metavar="SEED",
         type=NATURAL_INT,
         default=1000,
-        help="start keys seed .. seed+episodes-1 (default: %(default)s)",
+        help="episode i starts like a single env seeded seed + i (default: %(default)s)",
     )
     add(
         "--terrain-scale",
