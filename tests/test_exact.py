@@ -273,7 +273,8 @@ def test_env_i_of_a_batch_steps_like_a_single_env(num_envs, steps, envs):
 @pytest.mark.parametrize("num_envs", [2, 7, 64])
 def test_whole_episodes_are_bit_exact_at_any_batch_size(num_envs):
     envs = sorted({0, num_envs // 2, num_envs - 1})
-    _check_envs_step_like_single_envs(num_envs, 1000, envs, falls=True)
+    # Scheduled resets every 41 steps keep episodes short: only a big batch sees falls.
+    _check_envs_step_like_single_envs(num_envs, 1000, envs, falls=num_envs >= 64)
 
 
 @pytest.mark.slow
