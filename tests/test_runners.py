@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 import torch
 
+from rwalk.runners.checkpoints import load_checkpoint
+
 ROOT = Path(__file__).resolve().parents[1]
 TINY_TRAIN = [
     "--num-envs", "16", "--num-steps-per-env", "4", "--save-interval", "1",
@@ -44,7 +46,7 @@ def trained(tmp_path_factory) -> Path:
 
 def test_train_writes_checkpoints_logs_config_and_exports(trained):
     assert (trained / "model_1.pt").is_file()
-    assert torch.load(trained / "model_1.pt", weights_only=False)["iter"] == 1
+    assert load_checkpoint(trained / "model_1.pt")["iter"] == 1
     assert list(trained.glob("events.out.tfevents.*"))
     config = json.loads((trained / "config.json").read_text())
     assert config["args"]["num_envs"] == 16 and config["env"]["settle_pool"] == 8
@@ -69,7 +71,7 @@ def test_resume_continues_the_iteration_count(trained, tmp_path):
         "--resume", str(trained / "model_1.pt"), "--no-export",
     )  # fmt: skip
     assert "next iteration 2" in out
-    assert torch.load(tmp_path / "model_3.pt", weights_only=False)["iter"] == 3
+    assert load_checkpoint(tmp_path / "model_3.pt")["iter"] == 3
     assert not (tmp_path / "model_0.pt").exists() and not (tmp_path / "model_1.pt").exists()
 
 
@@ -127,8 +129,6 @@ def test_play_films_an_episode(tmp_path):
 
 
 def test_train_torchrl_runs_two_iterations(tmp_path):
-    from rwalk.runners.checkpoints import load_checkpoint
-
     out = run(
         "rwalk.runners.train_torchrl", "--num-envs", "8", "--max-iterations", "2",
         "--num-steps-per-env", "8", "--num-mini-batches", "2", "--settle-steps", "2",
