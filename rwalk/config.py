@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, field, fields
 
 from rwalk.gait import GaitParameters
+from rwalk.physics import Physics
 from rwalk.rewards import RewardWeights
 
 #: Most physics substeps per env step: the controller's targets for a whole control
@@ -31,8 +32,14 @@ class EnvConfig:
     """Env steps before truncation."""
     settle_steps: int = 500
     """Env steps of zero-residual gait run at each reset before the episode starts."""
-    decimation: int = 10
-    """Physics substeps per env step (10 x 2 ms = 50 Hz control)."""
+    control_dt: float | None = 0.02
+    """Duration of one env step (0.02 s = 50 Hz control). Seconds. None: decimation
+    x the physics timestep."""
+    decimation: int | None = None
+    """Physics substeps per env step; None derives it from control_dt / timestep
+    (5 at the default 4 ms timestep). Given with control_dt, the two must agree."""
+    physics: Physics = field(default_factory=Physics)
+    """Overrides of the world file's physics settings (none by default)."""
     terrain_scale: float = 1.0
     """Roughness of a heightfield world: 0 flat .. 1 full."""
     randomize: bool = False
@@ -63,7 +70,8 @@ class EnvConfig:
         def bad(name: str, why: str) -> ValueError:
             return ValueError(f"EnvConfig.{name} {why}, got {getattr(self, name)!r}")
 
-        for name, kind in (("gait", GaitParameters), ("reward_weights", RewardWeights)):
+        kinds = (("gait", GaitParameters), ("reward_weights", RewardWeights), ("physics", Physics))
+        for name, kind in kinds:
             if not isinstance(getattr(self, name), kind):
                 raise TypeError(
                     f"EnvConfig.{name} must be a {kind.__name__}, got "
@@ -92,20 +100,59 @@ class EnvConfig:
         )
         for name, low in integers:
             value = getattr(self, name)
+            if name == "decimation" and value is None:
+                continue
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise bad(name, f"must be an integer >= {low}")
-        if self.decimation > MAX_DECIMATION:
+        if self.decimation is not None and self.decimation > MAX_DECIMATION:
             raise bad(
                 "decimation",
                 f"must be <= {MAX_DECIMATION} (physics steps per control step: a 50 Hz controller "
-                "at a 2 ms timestep needs 10; each env step holds decimation servo targets)",
+                "at a 4 ms timestep needs 5; each env step holds decimation servo targets)",
             )
+        if self.control_dt is None and self.decimation is None:
+            raise ValueError("EnvConfig needs control_dt or decimation (both are None)")
+        if self.control_dt is not None and not (
+            _is_number(self.control_dt) and self.control_dt > 0
+        ):
+            raise bad("control_dt", "must be a number of seconds > 0")
         if not 0.0 <= self.terrain_scale <= 1.0:
             raise bad("terrain_scale", "must be in [0, 1]")
         if min(self.position_noise) < 0 or self.yaw_noise < 0 or self.tilt_noise < 0:
             raise ValueError("EnvConfig noise half-widths must be >= 0")
         if not isinstance(self.num_threads, int) or self.num_threads < 0:
             raise bad("num_threads", "must be an integer >= 0")
+
+    def substeps(self, timestep: float) -> int:
+        """Physics substeps per env step at a physics ``timestep`` (seconds).
+
+        Raises:
+            ValueError: naming the timestep, control_dt and decimation, if the
+                timestep is not positive or the substeps miss the control rate.
+        """
+        if not (_is_number(timestep) and math.isfinite(timestep) and timestep > 0):
+            raise ValueError(f"the physics timestep must be > 0 seconds, got {timestep!r}")
+        if self.control_dt is None:
+            return self.decimation
+        substeps = round(self.control_dt / timestep)
+        if self.decimation is not None and self.decimation != substeps:
+            raise ValueError(
+                f"EnvConfig.decimation={self.decimation} x timestep {timestep:g} s = "
+                f"{self.decimation * timestep:g} s misses control_dt={self.control_dt:g} s: "
+                f"use decimation={substeps or 1} or control_dt=None"
+            )
+        if substeps < 1 or abs(substeps * timestep - self.control_dt) > 1e-9 * self.control_dt:
+            raise ValueError(
+                f"the physics timestep {timestep:g} s does not divide EnvConfig.control_dt="
+                f"{self.control_dt:g} s into whole substeps: choose a timestep of "
+                f"control_dt / k (e.g. {self.control_dt / max(substeps, 1):g} s)"
+            )
+        if substeps > MAX_DECIMATION:
+            raise ValueError(
+                f"control_dt={self.control_dt:g} s at timestep {timestep:g} s needs {substeps} "
+                f"substeps per env step, more than {MAX_DECIMATION}"
+            )
+        return substeps
 
     @property
     def expected_velocity(self) -> float:

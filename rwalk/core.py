@@ -102,6 +102,7 @@ class ResidualWalkCore:
         self.config = config
         self.num_envs = num_envs
         self.model = load_model(config.model_path)
+        config.physics.apply(self.model)
         self.terrain = Terrain(self.model)
         if self.terrain.is_heightfield:
             self.terrain.set_scale(self.model, config.terrain_scale)
@@ -109,15 +110,17 @@ class ResidualWalkCore:
         self.dt = float(self.model.opt.timestep)
         if not (self.dt > 0 and np.isfinite(self.dt)):
             raise ValueError(f"{config.model_path}: option timestep must be > 0, got {self.dt!r}")
-        self.control_dt = self.dt * config.decimation
+        self.decimation = config.substeps(self.dt)
+        """Physics substeps per env step."""
+        self.control_dt = self.dt * self.decimation
         self.controller = BezierGaitController(config.gait, self.geometry, dt=self.dt)
-        if self.controller.period < 2 * config.decimation:
+        if self.controller.period < 2 * self.decimation:
             raise ValueError(
                 f"GaitParameters.cycle_time ({config.gait.cycle_time!r} s) must span at least 2 "
-                f"control steps ({2 * self.control_dt:g} s at decimation {config.decimation} x "
+                f"control steps ({2 * self.control_dt:g} s at decimation {self.decimation} x "
                 f"timestep {self.dt:g} s): the controller could not follow swing and stance"
             )
-        _check_memory(self.model, config, num_envs)
+        _check_memory(self.model, config, num_envs, self.decimation)
         self.sim = BatchedSim(self.model, num_envs, config.num_threads)
         joint_adr = [int(self.model.joint(name).qposadr[0]) for name in JOINT_NAMES]
         self._joint_qpos = slice(joint_adr[0], joint_adr[0] + len(joint_adr))
@@ -145,9 +148,9 @@ class ResidualWalkCore:
         with warnings.catch_warnings():  # sensordata is a read-only output; we only read it
             warnings.simplefilter("ignore", UserWarning)
             self._sensors = torch.from_numpy(self.sim.sensordata)
-        self._settle_ctrl = self._base_gait_ctrl(config.settle_steps * config.decimation)
+        self._settle_ctrl = self._base_gait_ctrl(config.settle_steps * self.decimation)
         self._stand_joints = self._base_gait_ctrl(1)[0]
-        self._settled_tick = config.settle_steps * config.decimation % self.controller.period
+        self._settled_tick = config.settle_steps * self.decimation % self.controller.period
         self._pool = _StartPool(self, config.settle_pool) if config.settle_pool else None
         self.physics_steps = {"step": 0, "settle": 0}
         """Physics substeps run so far: stepping the envs, and settling starts."""
@@ -373,7 +376,7 @@ class ResidualWalkCore:
 
     # ------------------------------------------------------------------ step
     def step(self, action: Tensor) -> StepResult:
-        """Advance every env by one control period (``decimation`` substeps).
+        """Advance every env by one control period (``self.decimation`` substeps).
 
         Args:
             action: residuals in [-1, 1] (values outside are clipped), per leg
@@ -388,14 +391,15 @@ class ResidualWalkCore:
         action = self.check_action(action)
         cfg = self.config
         residuals = action.view(self.num_envs, 4, 3) * cfg.residual_scale
-        ctrl, _ = self.controller.joint_targets(self.tick, cfg.decimation, residuals)
+        k = self.decimation
+        ctrl, _ = self.controller.joint_targets(self.tick, k, residuals)
         diverged = torch.from_numpy(self.sim.rollout(ctrl.numpy()))
-        self.physics_steps["step"] += self.num_envs * cfg.decimation
+        self.physics_steps["step"] += self.num_envs * k
         # Sensors are those of the last substep's start.
-        sensed_tick = self.tick + (cfg.decimation - 1)
+        sensed_tick = self.tick + (k - 1)
         # In place, like every state update here: callers step inside torch.inference_mode
         # (rsl-rl does) and reset outside it.
-        self.tick.add_(cfg.decimation).remainder_(self.controller.period)
+        self.tick.add_(k).remainder_(self.controller.period)
         self.episode_step += 1
         self.walked_steps += 1
 
@@ -506,7 +510,7 @@ class ResidualWalkCore:
         return log
 
 
-def _check_memory(model, config: EnvConfig, num_envs: int) -> None:
+def _check_memory(model, config: EnvConfig, num_envs: int, decimation: int) -> None:
     """Raise MemoryError at once if N envs would not fit, instead of failing mid-build.
 
     A conservative estimate per env: its integration state and sensor rows (in the
@@ -515,7 +519,7 @@ def _check_memory(model, config: EnvConfig, num_envs: int) -> None:
     """
     nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_INTEGRATION.value)
     row = 8 * (nstate + model.nsensordata + 4 * OBS_DIM)
-    per_env = row + 8 * 20 * config.decimation * ACTION_DIM
+    per_env = row + 8 * 20 * decimation * ACTION_DIM
     needed = num_envs * per_env + config.settle_pool * row
     available = _available_memory()
     if available is not None and needed > available:

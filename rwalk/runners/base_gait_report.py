@@ -25,7 +25,9 @@ WORLDS = {"flat": "model/world_flat.xml", "rough": "model/world_train.xml"}
 
 def foot_track(seconds_settle: float = 3.0, cycles: int = 2, leg: int = 0) -> dict[str, np.ndarray]:
     """Commanded and measured FL foot positions (torso frame) at every physics substep."""
-    config = dataclasses.replace(base_gait_config(WORLDS["flat"]), decimation=1, randomize=False)
+    config = dataclasses.replace(
+        base_gait_config(WORLDS["flat"]), decimation=1, control_dt=None, randomize=False
+    )
     core = ResidualWalkCore(config, 1, seed=0)
     core.reset()
     settle = round(seconds_settle / core.dt)

@@ -87,7 +87,7 @@ class Floor:
         import mujoco
         from mujoco import rollout
 
-        self.n, self.k, self.model = core.num_envs, core.config.decimation, core.model
+        self.n, self.k, self.model = core.num_envs, core.decimation, core.model
         self.core, self.gen = core, gen
         spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
         data = mujoco.MjData(self.model)
@@ -116,6 +116,15 @@ class Floor:
         )  # fmt: skip
         self.state[:] = self.out_state[:, -1]
         return time.perf_counter() - t0
+
+
+def _substeps(config) -> int:
+    """Physics substeps per env step of a config (its world's timestep, overrides applied)."""
+    from rwalk.assets import load_model
+
+    model = load_model(config.model_path)
+    config.physics.apply(model)
+    return config.substeps(model.opt.timestep)
 
 
 def _spread_episodes(core, generator: torch.Generator) -> None:
@@ -157,7 +166,9 @@ class EnvMeter:
         core, cfg = self.core, self.core.config
         physics = {key: core.physics_steps[key] - self.before[key] for key in self.before}
         total = physics["step"] + physics["settle"]
-        per_reset = cfg.settle_steps * cfg.decimation / (cfg.settle_reuse if cfg.settle_pool else 1)
+        per_reset = (
+            cfg.settle_steps * core.decimation / (cfg.settle_reuse if cfg.settle_pool else 1)
+        )
         resets = core.resets - self.resets
         amortized = resets * per_reset
         return {
@@ -342,7 +353,7 @@ def measure_gym(n: int, processes: int, window: float) -> dict:
     resets[0] = 0
     calls, seconds = _timed(step, window)
     vec.close()
-    k = config.decimation
+    k = _substeps(config)
     # Each reset settles settle_steps env steps (a start that falls is redrawn: rare).
     step_physics = calls * n * k
     settle_physics = resets[0] * config.settle_steps * k
