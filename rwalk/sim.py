@@ -56,6 +56,8 @@ class BatchedSim:
         """Live view of each row's joint positions. Shape: (num_sims, nq)."""
         self.qvel: np.ndarray = self.batch.bind("qvel")
         """Live view of each row's joint velocities. Shape: (num_sims, nv)."""
+        self.actuator_force: np.ndarray = self.batch.bind("actuator_force")
+        """Servo torques of each row's last substep. Shape: (num_sims, nu)."""
         self.state: np.ndarray = self.batch.state
         """Live integration-state rows (warmstart included). Shape: (num_sims, nstate)."""
         # warning rows are mjWarningStat (lastinfo, number) per warning type

@@ -113,9 +113,9 @@ def test_too_many_envs_fail_at_once_with_the_memory_figure():
 
 def test_a_non_positive_timestep_is_named(tmp_path):
     robot = (MODEL_DIR / "robot.xml").read_text()
-    assert 'timestep="0.002"' in robot
+    assert 'timestep="0.004"' in robot
     shutil.copy(MODEL_DIR / "world_flat.xml", tmp_path / "world_flat.xml")
-    (tmp_path / "robot.xml").write_text(robot.replace('timestep="0.002"', 'timestep="0"'))
+    (tmp_path / "robot.xml").write_text(robot.replace('timestep="0.004"', 'timestep="0"'))
     config = dataclasses.replace(QUICK, model_path=str(tmp_path / "world_flat.xml"))
     with pytest.raises(ValueError, match=r"timestep must be > 0, got 0\.0"):
         ResidualWalkCore(config, 1)

@@ -24,7 +24,7 @@ def test_robot_matches_the_design(flat_model):
     hips = np.array([m.body(f"{leg}_hip_link").pos for leg in ("FL", "FR", "RL", "RR")])
     assert hips[0, 0] - hips[2, 0] == pytest.approx(0.15)
     assert hips[0, 1] - hips[1, 1] == pytest.approx(0.08)
-    assert m.opt.timestep == 0.002 and m.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
+    assert m.opt.timestep == 0.004 and m.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
     for name in JOINT_NAMES:
         actuator = m.actuator(name)
         assert actuator.forcerange[1] == pytest.approx(0.3)  # hobby-servo stall torque
