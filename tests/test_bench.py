@@ -99,6 +99,8 @@ def test_the_summary_gives_robot_seconds_per_core_second_at_n_1024_on_one_thread
         "(control period 20 ms (5 x 4 ms))"
     ]
     assert "| 20 ms (5 x 4 ms) | 100.00 |" in table(rows)
+    one_thread = summary(rows[:2] + rows[3:])  # cores = 1: each line once, not for 1 and 1
+    assert one_thread.count("(b)/(a) physics steps/s at N=1024, 1 thread(s): 0.950") == 1
 
 
 def test_the_envpool_mode_is_skipped_in_one_line_without_envpool(monkeypatch, capsys):
@@ -133,7 +135,7 @@ def test_the_envpool_contest_table_and_summary():
 def test_envpool_is_refused_an_n_that_would_not_fit():
     check_memory(256, 24 * 1024.0)
     check_memory(10**6, None)  # nothing known: no refusal
-    with pytest.raises(MemoryError, match=r"N=1024: EnvPool's Go1 needs about 45\.5 GB"):
+    with pytest.raises(MemoryError, match=r"N=1024: EnvPool's Go1 needs about 50\.5 GB"):
         check_memory(1024, 24 * 1024.0)
 
 

@@ -28,7 +28,7 @@ control period (``core.control_dt``: ``core.decimation`` physics substeps):
   e  EnvPool's MuJoCo Playground ports Go1JoystickRoughTerrain-v1 and
      Go1JoystickFlatTerrain-v1 beside b on world_train and world_flat, same N and
      threads, random actions, alternating, one process per terrain
-     (rwalk.runners.bench_envpool). EnvPool's Go1 holds ~40 MB per env: keep N <= 256.
+     (rwalk.runners.bench_envpool). EnvPool's Go1 holds 40-50 MB per env: keep N <= 256.
 
 Every row carries simulated robot-seconds per core-second: env steps/s x control
 period / threads (for the floor, physics steps/s x timestep / threads). It compares
@@ -520,7 +520,7 @@ def plan(quick: bool) -> list[tuple[str, int, int]]:
     if cores > 1:
         runs.append(("d", cores, cores))  # AsyncVectorEnv: one worker process per core
         runs.append(("t", QUICK_SIZES[-1] if quick else 4096, cores))
-    # EnvPool's Go1 holds ~40 MB per env: N=256 at most (about 11 GB).
+    # EnvPool's Go1 holds 40-50 MB per env: N=256 at most (11-13 GB peak).
     runs += [("e", QUICK_SIZES[0] if quick else ENVPOOL_N, t) for t in thread_counts]
     return worker_runs(runs)
 
@@ -598,7 +598,8 @@ def summary(results: list[dict]) -> list[str]:
         return out
     by = {(r["mode"], r["n"], r["threads"]): r for r in results}
     cores = max(r["threads"] for r in results)
-    for mode, n, t in [(m, n, t) for m in "bc" for n in (1024, 4096, 8192) for t in (1, cores)]:
+    thread_counts = sorted({1, cores})  # once each where every row ran on 1 thread
+    for mode, n, t in [(m, n, t) for m in "bc" for n in (1024, 4096, 8192) for t in thread_counts]:
         if (mode, n, t) in by:
             ratio = by[(mode, n, t)]["ratio_to_floor"]
             out.append(f"({mode})/(a) physics steps/s at N={n}, {t} thread(s): {ratio:.3f}")

@@ -13,7 +13,7 @@ control period / threads. Each side's control period is read from its own
 config (rwalk's ``core.control_dt``, EnvPool's ``ctrl_dt``), never assumed.
 
 Memory: each side's resident memory added by building it and taking its first
-steps (current RSS, /proc/self/statm), per env. EnvPool's Go1 holds about 40 MB
+steps (current RSS, /proc/self/statm), per env. EnvPool's Go1 holds 40-50 MB
 per env, so N is capped by the memory this machine has free (see
 ``check_memory``); rwalk's N >= 1024 figures come from mode (b).
 """
@@ -38,8 +38,9 @@ TERRAINS = {
 }
 
 #: Resident memory of EnvPool's Go1 joystick envs, measured with envpool 1.2.5
-#: (N=16: 1.0 GB, N=64: 2.9 GB), rounded up: MB per env and MB for the pool.
-ENVPOOL_MB_PER_ENV = 45.0
+#: (rough, N=16: 1.0 GB, N=64: 2.9 GB, N=256: 10.4 GB; flat, N=256: 12.4 GB),
+#: rounded up: MB per env and MB for the pool.
+ENVPOOL_MB_PER_ENV = 50.0
 ENVPOOL_MB_FIXED = 500.0
 
 MISSING = "envpool is not installed (pip install -e '.[bench]' adds it)"
