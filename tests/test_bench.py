@@ -1,10 +1,12 @@
 """The benchmark's machinery at tiny sizes: what it measures and reports, not how fast."""
 
 import json
+import sys
 
 import pytest
 
 from rwalk.runners.bench import bench, main, summary, table
+from rwalk.runners.bench_envpool import MISSING, check_memory
 
 
 def test_bench_pairs_each_contender_with_its_floor(tmp_path):
@@ -22,13 +24,25 @@ def test_bench_pairs_each_contender_with_its_floor(tmp_path):
     assert by_mode["c"]["ratio_to_floor"] > 0
     for row in (b, by_mode["c"]):
         assert 0.0 <= row["settle_share"] <= 1.0 and 0.0 < row["time_in_mujoco"] <= 1.0
-        # every env step is 10 physics steps, plus settling
-        assert row["physics_steps_per_s"] >= 10 * row["env_steps_per_s"] * 0.999
+        # every env step is `substeps` physics steps, plus settling
+        assert row["physics_steps_per_s"] >= row["substeps"] * row["env_steps_per_s"] * 0.999
+    for row in results:
+        # the env step's duration comes from the world's timestep, not from a constant
+        assert row["control_dt_s"] == pytest.approx(row["substeps"] * row["timestep_s"])
+    for row in (a, b, by_mode["c"], by_mode["d"]):
+        expected = row["env_steps_per_s"] * row["control_dt_s"] / row["threads"]
+        assert row["robot_seconds_per_core_second"] == pytest.approx(expected)
+    for row in by_mode["t"]["pairs"].values():
+        expected = row["env_steps_per_s"] * row["control_dt_s"] / row["threads"]
+        assert row["robot_seconds_per_core_second"] == pytest.approx(expected)
     pairs = by_mode["t"]["pairs"]
     assert {row["threads"] for row in pairs.values()} == {1, 2}
     speedup = pairs["b2"]["env_steps_per_s"] / pairs["b1"]["env_steps_per_s"]
     assert by_mode["t"]["env_speedup"] == speedup
     assert "| b ResidualWalkVecEnv | 4 | 1 |" in table(results)
+    header = table(results).splitlines()[0]
+    assert "| control period | robot s / core s |" in header
+    assert f" {b['robot_seconds_per_core_second']:.2f} |" in table(results)
     assert any(line.startswith("(b) 2 threads vs 1 at N=4") for line in summary(results))
 
 
@@ -60,3 +74,80 @@ def test_the_window_must_be_a_positive_number(seconds, capsys):
     assert f"argument --seconds: expected a number of seconds > 0, got {seconds!r}" in (
         capsys.readouterr().err
     )
+
+
+def _row(mode, n, threads, env_steps_per_s, **extra):
+    """A crafted result row: 20 ms env steps of 5 x 4 ms substeps."""
+    return {
+        "mode": mode, "n": n, "threads": threads, "env_steps_per_s": env_steps_per_s,
+        "physics_steps_per_s": 5 * env_steps_per_s, "control_dt_s": 0.02, "substeps": 5,
+        "timestep_s": 0.004, "robot_seconds_per_core_second": env_steps_per_s * 0.02 / threads,
+        "settle_share": 0.0, "peak_rss_mb": 400.0, **extra,
+    }  # fmt: skip
+
+
+def test_the_summary_gives_robot_seconds_per_core_second_at_n_1024_on_one_thread():
+    rows = [
+        _row("b", 1024, 1, 5000.0, ratio_to_floor=0.95, floor_physics_steps_per_s=26000.0),
+        _row("a", 1024, 1, 5200.0, ratio_to_floor=1.0),
+        _row("b", 1024, 2, 9000.0, ratio_to_floor=0.95),
+        _row("b", 16, 1, 2000.0, ratio_to_floor=0.8),
+    ]
+    lines = [line for line in summary(rows) if line.startswith("robot-seconds")]
+    assert lines == [
+        "robot-seconds per core-second at N=1024, 1 thread: (b) 100.00, (a) 104.00 "
+        "(control period 20 ms (5 x 4 ms))"
+    ]
+    assert "| 20 ms (5 x 4 ms) | 100.00 |" in table(rows)
+    one_thread = summary(rows[:2] + rows[3:])  # cores = 1: each line once, not for 1 and 1
+    assert one_thread.count("(b)/(a) physics steps/s at N=1024, 1 thread(s): 0.950") == 1
+
+
+def test_the_envpool_mode_is_skipped_in_one_line_without_envpool(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "envpool", None)  # `import envpool` raises ImportError
+    assert main(["--only", "e,4,1", "--only", "e,8,1", "--seconds", "0.01"]) == 0
+    out = capsys.readouterr().out
+    skips = [line for line in out.splitlines() if "skipped" in line]
+    assert skips == [
+        f"[{i}/2] (e) rwalk vs EnvPool Go1 joystick, N={n}, threads=1 ... skipped: {MISSING}"
+        for i, n in ((1, 4), (2, 8))
+    ]
+    assert "failed" not in out and "Traceback" not in out
+
+
+def test_the_envpool_contest_table_and_summary():
+    ours = _row("e", 256, 1, 6000.0, terrain="rough", contender="rwalk", task="world_train",
+                cores_busy=1.0, resets_per_step=2.56, memory_per_env_mb=0.25,
+                ratio_to_envpool=1.5)  # fmt: skip
+    theirs = _row("e", 256, 1, 4000.0, terrain="rough", contender="envpool", task="Go1Rough",
+                  cores_busy=0.95, resets_per_step=5.12, memory_per_env_mb=40.0)  # fmt: skip
+    text = table([theirs, ours])
+    assert text.splitlines()[0].startswith("| terrain | env | N | threads |")
+    assert "| rough | rwalk world_train | 256 | 1 | 6,000 | 20 ms (5 x 4 ms) | 120.00 |" in text
+    assert text.index("rwalk world_train") < text.index("EnvPool Go1Rough")
+    (line,) = summary([ours, theirs])
+    assert line.startswith(
+        "(e) rough, N=256, 1 thread(s), alternating: rwalk world_train 120.00 vs EnvPool "
+        "Go1Rough 80.00 robot-seconds per core-second: 1.50x; memory per env 0.25 vs 40.0 MB"
+    )
+
+
+def test_envpool_is_refused_an_n_that_would_not_fit():
+    check_memory(256, 24 * 1024.0)
+    check_memory(10**6, None)  # nothing known: no refusal
+    with pytest.raises(MemoryError, match=r"N=1024: EnvPool's Go1 needs about 50\.5 GB"):
+        check_memory(1024, 24 * 1024.0)
+
+
+def test_rwalk_against_envpool_when_installed():
+    pytest.importorskip("envpool")  # the bench extra: not in CI
+    results = bench(["--only", "e,2,1", "--seconds", "0.2"])
+    pairs = {(r["terrain"], r["contender"]): r for r in results}
+    assert set(pairs) == {(t, c) for t in ("rough", "flat") for c in ("rwalk", "envpool")}
+    for terrain in ("rough", "flat"):
+        ours, theirs = pairs[(terrain, "rwalk")], pairs[(terrain, "envpool")]
+        assert theirs["control_dt_s"] == pytest.approx(theirs["substeps"] * theirs["timestep_s"])
+        assert ours["ratio_to_envpool"] == pytest.approx(
+            ours["robot_seconds_per_core_second"] / theirs["robot_seconds_per_core_second"]
+        )
+        assert theirs["memory_per_env_mb"] > 0 and 0 < theirs["cores_busy"] < 1.5
