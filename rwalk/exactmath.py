@@ -7,10 +7,16 @@ a batch and on which machine runs it. IEEE-754, however, rounds +, -, x, / and
 sqrt correctly, element by element, identically in SIMD and scalar code. So
 every function here is built from those alone (plus floor, abs, comparisons,
 ``where``, ``copysign`` and table look-ups, which are exact), one operation per
-torch call, in float64: range reduction, then a polynomial evaluated by
-Horner's rule in separate multiply and add calls (never a fused op that a
-kernel may compile to an FMA: no ``addcmul``, ``lerp``, ``alpha=``, matmul or
-reductions). The result is a pure function of the input bits.
+call, in float64: range reduction, then a polynomial evaluated by Horner's rule
+in separate multiply and add calls (never a fused op that a kernel may compile
+to an FMA: no ``addcmul``, ``lerp``, ``alpha=``, matmul or reductions). The
+result is a pure function of the input bits. One exception to the premise:
+``torch.sqrt`` of float64 on the CPU goes through MKL's vector math and rounds
+~1% of results the other way, so sqrt is numpy's (``rwalk.arrayops``).
+
+atan2 (and atan, asin, acos) take torch tensors, numpy arrays or Python floats
+and run the same operations on each, so all three give the same bits: the
+batched core uses tensors, the single env arrays and floats (``rwalk.single``).
 
 Accuracy (tests/test_exact.py checks it against torch on random and edge-case
 inputs, and against mpmath): within 2 ulp of the exact value and 3e-16 absolute
@@ -137,9 +143,9 @@ def _horner(s, coeffs: tuple[float, ...]):
     """c0 + s (c1 + s (c2 + ...)), one multiply and one add per call (no FMA)."""
     acc = s * coeffs[-1]
     for k in range(len(coeffs) - 2, -1, -1):
-        acc = acc + coeffs[k]
+        acc += coeffs[k]  # in place on tensors and arrays
         if k:
-            acc = acc * s
+            acc *= s
     return acc
 
 
@@ -197,20 +203,38 @@ def atan2(y, x):
     y, x = xp.as_f64(y), xp.as_f64(x)
     if xp is not arrayops.FloatOps and y.shape != x.shape:
         y, x = xp.broadcast(y, x)
+    # Augmented assignments work in place on tensors and arrays (no temporaries of the
+    # batch's size) and rebind floats.
     ax, ay = abs(x), abs(y)
     den = xp.clamp(xp.maximum(ax, ay), _TINY)  # 0/0 -> 0
-    a = xp.nan_to(xp.minimum(ax, ay) / den, 1.0)  # inf/inf -> 1 (a NaN input is restored below)
-    j = xp.floor(a * 8.0 + 0.5)
+    a = xp.minimum(ax, ay)
+    a /= den
+    a = xp.nan_to(a, 1.0)  # inf/inf -> 1 (a NaN input is restored below)
+    j = a * 8.0
+    j += 0.5
+    j = xp.floor(j)
     c = j * 0.125
-    t = (a - c) / (c * a + 1.0)
+    t = a - c
+    c *= a
+    c += 1.0
+    t /= c
     s = t * t
-    p = _horner(s, _ATAN) * s * t + t  # atan t = t + t s P(s), |t| <= 1/16
+    p = _horner(s, _ATAN)
+    p *= s
+    p *= t
+    p += t  # atan t = t + t s P(s), |t| <= 1/16
     # Table index: 9 (2 swap + (x < 0)) + j.
-    code = (xp.as_float(ay > ax) * 2.0 + xp.as_float(xp.signbit(x))) * 9.0 + j
+    code = xp.as_float(ay > ax) * 2.0
+    code += xp.as_float(xp.signbit(x))
+    code *= 9.0
+    code += j
     sign, lo, hi = xp.lookup(_OCTANT, code)
-    angle = sign * p + lo + hi
+    angle = sign * p
+    angle += lo
+    angle += hi
     # NaN in -> NaN out: ax + ay is NaN only then (both >= 0), so this adds 0 or NaN.
-    angle = angle + xp.clamp(ax + ay, None, 0.0)
+    ax += ay
+    angle += xp.clamp(ax, None, 0.0)
     return xp.copysign(angle, y)
 
 

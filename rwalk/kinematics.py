@@ -212,12 +212,13 @@ def leg_ik(feet, geometry: LegGeometry, *, flag_unreachable: bool = True):
     # q2 = (angle of the hip->foot line from straight down, positive backwards)
     #      - (angle of the foot seen from the hip in the thigh's frame).
     # All four angles in one atan2 call (per-call overhead dominates small batches).
+    # Stacked along a new first axis: contiguous in numpy, and angles[k] are cheap views.
     angles = exactmath.atan2(
-        xp.stack((q1_y, sin_knee, -px, -l2 * sin_knee)),
-        xp.stack((q1_x, cos_knee, -z_plane, l1 + l2 * cos_knee)),
+        xp.stack((q1_y, sin_knee, -px, -l2 * sin_knee), axis=0),
+        xp.stack((q1_x, cos_knee, -z_plane, l1 + l2 * cos_knee), axis=0),
     )
-    q1, q3 = angles[..., 0], -angles[..., 1]
-    q2 = angles[..., 2] - angles[..., 3]
+    q1, q3 = angles[0], -angles[1]
+    q2 = angles[2] - angles[3]
 
     joints = xp.stack((q1, q2, q3))
     if flag_unreachable:
