@@ -83,3 +83,12 @@ def test_step_single_refuses_a_batch_and_bad_actions():
         single.step_single(np.zeros(12, dtype=np.float16))
     # Integer actions are accepted, as by the batched step.
     single.step_single(np.zeros(12, dtype=np.int64))
+
+
+def test_single_bench_smoke(capsys):
+    from rwalk.runners import single_bench
+
+    results = single_bench.main(["--steps", "3", "--rounds", "1"])
+    assert [r.label for r in results] == ["10 x 2 ms", "5 x 4 ms"]
+    assert all(r.steps == 3 and r.step_us > 0 and r.floor_us > 0 for r in results)
+    assert "floor/step" in capsys.readouterr().out
