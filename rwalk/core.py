@@ -52,6 +52,7 @@ from rwalk.gait import BezierGaitController
 from rwalk.kinematics import LegGeometry
 from rwalk.rewards import TERM_NAMES, compute_terms, fallen, quat_to_rpy
 from rwalk.sim import BatchedSim
+from rwalk.single import SingleStep, SingleStepResult
 from rwalk.terrain import Terrain
 
 #: Attempts at a start that does not fall or diverge while settling.
@@ -160,11 +161,12 @@ class ResidualWalkCore:
         """Called with (physics steps done, total) of each settle: 0 first, then per chunk."""
         self._started = False
         self.seed(seed)
+        self._single = SingleStep(self) if n == 1 else None
 
     #: Attributes rebuilt from the config when a core is unpickled or deep-copied.
     _REBUILT = (
         "model", "terrain", "geometry", "controller", "sim", "_sensors", "_settle_ctrl",
-        "_stand_joints", "_pool", "settle_progress",
+        "_stand_joints", "_pool", "settle_progress", "_single",
     )  # fmt: skip
 
     def __getstate__(self) -> dict:
@@ -427,6 +429,21 @@ class ResidualWalkCore:
             self.episode_sums[name] += term
         self.episode_distance += forward_velocity.masked_fill(diverged, 0.0) * self.control_dt
         return StepResult(obs, reward, terms, terminated, truncated, diverged)
+
+    def step_single(self, action: np.ndarray) -> SingleStepResult:
+        """``step`` for a core of one env, on numpy and Python floats: the same bits,
+        at a fraction of the cost (see ``rwalk.single``).
+
+        Args:
+            action: residuals in [-1, 1] (values outside are clipped). Shape: (12,).
+
+        Raises:
+            ValueError: num_envs is not 1; the action's shape, dtype or a value (naming it).
+            RuntimeError: before the first reset.
+        """
+        if self._single is None:
+            raise ValueError(f"step_single needs a core of 1 env, got num_envs={self.num_envs}")
+        return self._single.step(action)
 
     def check_action(self, action: Tensor | np.ndarray) -> Tensor:
         """Validate and clip an action batch. Returns float64 (N, 12).

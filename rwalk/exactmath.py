@@ -7,10 +7,16 @@ a batch and on which machine runs it. IEEE-754, however, rounds +, -, x, / and
 sqrt correctly, element by element, identically in SIMD and scalar code. So
 every function here is built from those alone (plus floor, abs, comparisons,
 ``where``, ``copysign`` and table look-ups, which are exact), one operation per
-torch call, in float64: range reduction, then a polynomial evaluated by
-Horner's rule in separate multiply and add calls (never a fused op that a
-kernel may compile to an FMA: no ``addcmul``, ``lerp``, ``alpha=``, matmul or
-reductions). The result is a pure function of the input bits.
+call, in float64: range reduction, then a polynomial evaluated by Horner's rule
+in separate multiply and add calls (never a fused op that a kernel may compile
+to an FMA: no ``addcmul``, ``lerp``, ``alpha=``, matmul or reductions). The
+result is a pure function of the input bits. One exception to the premise:
+``torch.sqrt`` of float64 on the CPU goes through MKL's vector math and rounds
+~1% of results the other way, so sqrt is numpy's (``rwalk.arrayops``).
+
+atan2 (and atan, asin, acos) take torch tensors, numpy arrays or Python floats
+and run the same operations on each, so all three give the same bits: the
+batched core uses tensors, the single env arrays and floats (``rwalk.single``).
 
 Accuracy (tests/test_exact.py checks it against torch on random and edge-case
 inputs, and against mpmath): within 2 ulp of the exact value and 3e-16 absolute
@@ -34,11 +40,12 @@ correctly rounded integer divisions, the same everywhere.
 
 from __future__ import annotations
 
-import functools
 import math
 
 import torch
 from torch import Tensor
+
+from rwalk import arrayops
 
 #: Largest |x| for which sin and cos are accurate; beyond it they return NaN.
 SIN_COS_LIMIT = math.ldexp(1.0, 20) * 1.5707963267948966
@@ -124,24 +131,21 @@ def _octant_tables() -> tuple[tuple[float, ...], tuple[float, ...], tuple[float,
 _OCTANT_HI, _OCTANT_LO, _OCTANT_SIGN = _octant_tables()
 
 
-@functools.lru_cache(maxsize=8)
-def _tables(device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
-    return tuple(
-        torch.tensor(t, dtype=F64, device=device) for t in (_OCTANT_HI, _OCTANT_LO, _OCTANT_SIGN)
-    )  # type: ignore[return-value]
+#: Per octant code and j: (sign, lo, hi) of base + sign x atan(j/8).
+_OCTANT = arrayops.Table(tuple(zip(_OCTANT_SIGN, _OCTANT_LO, _OCTANT_HI, strict=True)))
 
 
 def _as_f64(x: Tensor | float) -> Tensor:
     return torch.as_tensor(x, dtype=F64)
 
 
-def _horner(s: Tensor, coeffs: tuple[float, ...]) -> Tensor:
+def _horner(s, coeffs: tuple[float, ...]):
     """c0 + s (c1 + s (c2 + ...)), one multiply and one add per call (no FMA)."""
     acc = s * coeffs[-1]
     for k in range(len(coeffs) - 2, -1, -1):
-        acc.add_(coeffs[k])
+        acc += coeffs[k]  # in place on tensors and arrays
         if k:
-            acc.mul_(s)
+            acc *= s
     return acc
 
 
@@ -181,64 +185,78 @@ def cos(x: Tensor) -> Tensor:
     return _sin_cos(x)[1]
 
 
-def atan2(y: Tensor, x: Tensor) -> Tensor:
+def atan2(y, x):
     """The angle of (x, y) in [-π, π], as ``torch.atan2`` (signed zeros and infinities
     included). Inputs broadcast; float64 result.
+
+    Takes torch tensors, numpy arrays or floats (a tuple of floats elementwise), with
+    the same operations and so the same bits for each (see ``rwalk.arrayops``).
 
     With a = min(|x|, |y|) / max(|x|, |y|) in [0, 1] and j = round(8a), the angle is
     base + sign (atan(j/8) + atan t), t = (a - j/8) / (1 + a j/8), |t| <= 1/16; base,
     sign and atan(j/8) come from one table lookup. Few ``where`` calls: they are
     several times slower than arithmetic on large tensors.
     """
-    y, x = torch.broadcast_tensors(_as_f64(y), _as_f64(x))
-    hi, lo, sign = _tables(x.device)
-    ax, ay = x.abs(), y.abs()
-    den = torch.maximum(ax, ay)
-    a = torch.minimum(ax, ay)
-    a.div_(den.clamp_(min=_TINY))  # 0/0 -> 0
-    a.nan_to_num_(nan=1.0)  # inf/inf -> 1 (a NaN input is restored below)
+    if type(y) is tuple:
+        return tuple(atan2(a, b) for a, b in zip(y, x, strict=True))
+    xp = arrayops.of(y, x)
+    y, x = xp.as_f64(y), xp.as_f64(x)
+    if xp is not arrayops.FloatOps and y.shape != x.shape:
+        y, x = xp.broadcast(y, x)
+    # Augmented assignments work in place on tensors and arrays (no temporaries of the
+    # batch's size) and rebind floats.
+    ax, ay = abs(x), abs(y)
+    den = xp.clamp(xp.maximum(ax, ay), _TINY)  # 0/0 -> 0
+    a = xp.minimum(ax, ay)
+    a /= den
+    a = xp.nan_to(a, 1.0)  # inf/inf -> 1 (a NaN input is restored below)
     j = a * 8.0
-    j.add_(0.5).floor_()
+    j += 0.5
+    j = xp.floor(j)
     c = j * 0.125
     t = a - c
-    c.mul_(a).add_(1.0)
-    t.div_(c)
+    c *= a
+    c += 1.0
+    t /= c
     s = t * t
     p = _horner(s, _ATAN)
-    p.mul_(s).mul_(t).add_(t)  # atan t = t + t s P(s), |t| <= 1/16
+    p *= s
+    p *= t
+    p += t  # atan t = t + t s P(s), |t| <= 1/16
     # Table index: 9 (2 swap + (x < 0)) + j.
-    code = (ay > ax).to(F64)
-    code.mul_(2.0).add_(torch.signbit(x).to(F64)).mul_(9.0).add_(j)
-    index = code.long().flatten()
-    angle = sign.index_select(0, index).reshape(p.shape)
-    angle.mul_(p).add_(lo.index_select(0, index).reshape(p.shape))
-    angle.add_(hi.index_select(0, index).reshape(p.shape))
+    code = xp.as_float(ay > ax) * 2.0
+    code += xp.as_float(xp.signbit(x))
+    code *= 9.0
+    code += j
+    sign, lo, hi = xp.lookup(_OCTANT, code)
+    angle = sign * p
+    angle += lo
+    angle += hi
     # NaN in -> NaN out: ax + ay is NaN only then (both >= 0), so this adds 0 or NaN.
-    ax.add_(ay).clamp_(max=0.0)
-    angle.add_(ax)
-    return torch.copysign(angle, y)
+    ax += ay
+    angle += xp.clamp(ax, None, 0.0)
+    return xp.copysign(angle, y)
 
 
-def atan(x: Tensor) -> Tensor:
-    """atan x in [-π/2, π/2], float64, same shape."""
-    x = _as_f64(x)
-    return atan2(x, torch.ones_like(x))
+def atan(x):
+    """atan x in [-π/2, π/2], float64, same shape (tensor, array or float)."""
+    return atan2(arrayops.of(x).as_f64(x), 1.0)
 
 
-def _cosine_of_asin(x: Tensor) -> Tensor:
+def _cosine_of_asin(x):
     """sqrt(1 - x²) computed as sqrt((1 - x)(1 + x)), exact factors near |x| = 1."""
     one_minus = 1.0 - x
     one_plus = 1.0 + x
-    return torch.sqrt(one_minus * one_plus)
+    return arrayops.of(x).sqrt(one_minus * one_plus)
 
 
-def asin(x: Tensor) -> Tensor:
+def asin(x):
     """asin x in [-π/2, π/2], float64, same shape; NaN outside [-1, 1]."""
-    x = _as_f64(x)
+    x = arrayops.of(x).as_f64(x)
     return atan2(x, _cosine_of_asin(x))
 
 
-def acos(x: Tensor) -> Tensor:
+def acos(x):
     """acos x in [0, π], float64, same shape; NaN outside [-1, 1]."""
-    x = _as_f64(x)
+    x = arrayops.of(x).as_f64(x)
     return atan2(_cosine_of_asin(x), x)

@@ -1,4 +1,4 @@
-"""Analytic forward and inverse kinematics of the 3-DOF legs, batched in torch.
+"""Analytic forward and inverse kinematics of the 3-DOF legs, batched in torch (IK also numpy).
 
 Each leg is a serial chain: an abduction joint about the torso's x axis at the
 hip point, a hip joint about y offset sideways from it by ``abduction_offset``,
@@ -16,13 +16,14 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import mujoco
 import numpy as np
 import torch
 from torch import Tensor
 
-from rwalk import exactmath
+from rwalk import arrayops, exactmath
 from rwalk.constants import LEG_NAMES, TORSO_BODY
 
 
@@ -103,13 +104,33 @@ def _knee_reach(geometry: LegGeometry, knee: float) -> float:
     return math.sqrt(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * cos_knee)
 
 
+class _Constants(NamedTuple):
+    """Per-leg constants of the IK, float64 tensors or arrays. Each shape: (4,) or (3,)."""
+
+    offset: Any
+    offset_squared: Any
+    min_r: Any
+    lower: Any
+    upper: Any
+    lower_tolerance: Any
+    upper_tolerance: Any
+    near: float
+    """``geometry.min_knee_reach`` (a property that costs two dozen torch calls)."""
+    far: float
+    """``geometry.max_knee_reach``."""
+
+
 @functools.lru_cache(maxsize=16)
-def _constants(geometry: LegGeometry, dtype: torch.dtype) -> tuple[Tensor, Tensor, Tensor]:
-    """Abduction offsets, lower and upper joint limits as tensors (cached: built once)."""
-    offset = torch.tensor(geometry.abduction_offsets, dtype=dtype)
-    lower = torch.tensor(geometry.joint_lower, dtype=dtype)
-    upper = torch.tensor(geometry.joint_upper, dtype=dtype)
-    return offset, lower, upper
+def _constants(geometry: LegGeometry, kind: str) -> _Constants:
+    """The IK's constants as torch tensors or numpy arrays (cached: built once)."""
+    offset = torch.tensor(geometry.abduction_offsets, dtype=torch.float64)
+    lower = torch.tensor(geometry.joint_lower, dtype=torch.float64)
+    upper = torch.tensor(geometry.joint_upper, dtype=torch.float64)
+    values = (offset, offset * offset, offset.abs() * (1.0 + 1e-9), lower, upper,
+              lower - 1e-9, upper + 1e-9)  # fmt: skip
+    if kind == "numpy":
+        values = tuple(v.numpy() for v in values)
+    return _Constants(*values, near=geometry.min_knee_reach, far=geometry.max_knee_reach)
 
 
 def leg_fk(joints: Tensor, geometry: LegGeometry) -> Tensor:
@@ -127,7 +148,7 @@ def leg_fk(joints: Tensor, geometry: LegGeometry) -> Tensor:
     joints = joints.to(torch.float64)
     q1, q2, q3 = joints.unbind(-1)
     l1, l2 = geometry.thigh_length, geometry.shin_length
-    offset = _constants(geometry, joints.dtype)[0]
+    offset = _constants(geometry, "torch").offset
     # Foot in the leg plane (hip-joint frame before abduction).
     s2, c2 = exactmath.sin(q2), exactmath.cos(q2)
     s23, c23 = exactmath.sin(q2 + q3), exactmath.cos(q2 + q3)
@@ -139,7 +160,7 @@ def leg_fk(joints: Tensor, geometry: LegGeometry) -> Tensor:
     return torch.stack((x, y_out, z_out), dim=-1).to(dtype)
 
 
-def leg_ik(feet: Tensor, geometry: LegGeometry) -> tuple[Tensor, Tensor]:
+def leg_ik(feet, geometry: LegGeometry, *, flag_unreachable: bool = True):
     """Joint angles that put the feet at the given points, knee bent backwards.
 
     Targets outside the leg's workspace are projected onto it (nearest
@@ -147,53 +168,64 @@ def leg_ik(feet: Tensor, geometry: LegGeometry) -> tuple[Tensor, Tensor]:
     never NaN.
 
     Args:
-        feet: foot-centre targets in each leg's hip frame. Shape: (..., 4, 3).
+        feet: foot-centre targets in each leg's hip frame, a torch tensor or a
+            numpy array (the same operations, so the same bits). Shape: (..., 4, 3).
         geometry: the legs.
+        flag_unreachable: compute ``reachable``; False returns None for it, and
+            saves its dozen elementwise calls.
 
     Returns:
         joints: (abduction, hip, knee) per leg, computed in float64: each row
             depends only on its own target, bit for bit, on any CPU. Shape: (..., 4, 3).
         reachable: True where the target was reached exactly. Shape: (..., 4).
     """
+    xp = arrayops.of(feet)
     l1, l2 = geometry.thigh_length, geometry.shin_length
     dtype = feet.dtype
-    feet = feet.to(torch.float64)
-    offset, lower, upper = _constants(geometry, feet.dtype)
-    px, py, pz = feet.unbind(-1)
+    feet = xp.as_f64(feet)
+    const = _constants(geometry, "torch" if xp is arrayops.TorchOps else "numpy")
+    offset = const.offset
+    px, py, pz = feet[..., 0], feet[..., 1], feet[..., 2]
     # Elementwise +, -, x, /, sqrt and exactmath only (one op per call, no reductions):
     # each row's result is the same bits whatever the batch size and CPU.
 
     # Abduction: the foot lies in the plane swept by the thigh, |offset| from the axis.
-    r_yz = torch.sqrt(py * py + pz * pz)
-    min_r = offset.abs() * (1.0 + 1e-9)
-    ok = r_yz >= min_r
-    r_yz = torch.maximum(r_yz, min_r)
-    z_plane = -torch.sqrt(torch.clamp(r_yz * r_yz - offset * offset, min=0.0))
+    r_yz = xp.sqrt(py * py + pz * pz)
+    ok = r_yz >= const.min_r if flag_unreachable else None
+    r_yz = xp.maximum(r_yz, const.min_r)
+    z_plane = -xp.sqrt(xp.clamp(r_yz * r_yz - const.offset_squared, 0.0))
     # q1 = angle(py, pz) - angle(offset, z_plane), in [-π, π]: the angle of the
     # product of (py + i pz) and the conjugate of (offset + i z_plane).
     q1_y = pz * offset - py * z_plane
     q1_x = py * offset + pz * z_plane
 
     # Hip and knee: planar two-link problem, distance clamped to what the knee allows.
-    dist = torch.sqrt(px * px + z_plane * z_plane)
-    near, far = geometry.min_knee_reach, geometry.max_knee_reach
-    ok = ok & (dist >= near * (1.0 - 1e-9)) & (dist <= far * (1.0 + 1e-9))
-    dist = torch.clamp(dist, near, far)
+    dist = xp.sqrt(px * px + z_plane * z_plane)
+    near, far = const.near, const.far
+    if flag_unreachable:
+        ok = ok & (dist >= near * (1.0 - 1e-9)) & (dist <= far * (1.0 + 1e-9))
+    dist = xp.clamp(dist, near, far)
     cos_knee = (dist * dist - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
-    cos_knee = torch.clamp(cos_knee, -1.0, 1.0)
+    cos_knee = xp.clamp(cos_knee, -1.0, 1.0)
     # q3 = -acos(cos_knee); its sine is -sqrt(1 - cos²), taken as acos takes it.
-    sin_knee = torch.sqrt((1.0 - cos_knee) * (1.0 + cos_knee))
+    sin_knee = xp.sqrt((1.0 - cos_knee) * (1.0 + cos_knee))
     # q2 = (angle of the hip->foot line from straight down, positive backwards)
     #      - (angle of the foot seen from the hip in the thigh's frame).
     # All four angles in one atan2 call (per-call overhead dominates small batches).
+    # Stacked along a new first axis: contiguous in numpy, and angles[k] are cheap views.
     angles = exactmath.atan2(
-        torch.stack((q1_y, sin_knee, -px, -l2 * sin_knee), dim=-1),
-        torch.stack((q1_x, cos_knee, -z_plane, l1 + l2 * cos_knee), dim=-1),
+        xp.stack((q1_y, sin_knee, -px, -l2 * sin_knee), axis=0),
+        xp.stack((q1_x, cos_knee, -z_plane, l1 + l2 * cos_knee), axis=0),
     )
-    q1, q3 = angles[..., 0], -angles[..., 1]
-    q2 = angles[..., 2] - angles[..., 3]
+    q1, q3 = angles[0], -angles[1]
+    q2 = angles[2] - angles[3]
 
-    joints = torch.stack((q1, q2, q3), dim=-1)
-    # Rounding can put a target exactly on a limit a hair outside it: tolerate 1e-9 rad.
-    ok = ok & ((joints >= lower - 1e-9) & (joints <= upper + 1e-9)).all(dim=-1)
-    return torch.clamp(joints, lower, upper).to(dtype), ok
+    joints = xp.stack((q1, q2, q3))
+    if flag_unreachable:
+        # Rounding can put a target exactly on a limit a hair outside it: tolerate 1e-9 rad.
+        within = (joints >= const.lower_tolerance) & (joints <= const.upper_tolerance)
+        ok = ok & xp.all_last(within)
+    joints = xp.clamp(joints, const.lower, const.upper)
+    if xp is arrayops.TorchOps:
+        joints = joints.to(dtype)
+    return joints, ok

@@ -1,10 +1,13 @@
-"""Reward terms and termination as pure torch functions of batched tensors.
+"""Reward terms and termination as pure functions of batched tensors.
 
-Each term returns its unweighted value; ``RewardWeights`` holds the spec's
-weights, and the reward is exactly the sum of the weighted terms. Only
-elementwise IEEE arithmetic and ``rwalk.exactmath`` (no reductions over a
-dimension, whose summation order depends on the tensor's length), so each env's
-terms are the same bits whatever the batch size and CPU.
+Each function also takes numpy arrays, or floats for one env (a tuple of floats
+for a vector), with the same operations and so the same bits (``rwalk.arrayops``);
+the single Gymnasium env computes its reward on floats. Each term returns its
+unweighted value; ``RewardWeights`` holds the spec's weights, and the reward is
+exactly the sum of the weighted terms. Only elementwise IEEE arithmetic and
+``rwalk.exactmath`` (no reductions over a dimension, whose summation order
+depends on the tensor's length), so each env's terms are the same bits whatever
+the batch size and CPU.
 """
 
 from __future__ import annotations
@@ -12,10 +15,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-import torch
 from torch import Tensor
 
-from rwalk import exactmath
+from rwalk import arrayops, exactmath
 
 #: Names of the reward terms, in the order they are reported.
 TERM_NAMES: tuple[str, ...] = ("velocity_tracking", "contact_pattern", "stability", "lateral")
@@ -59,21 +61,22 @@ def quat_to_rpy(quat: Tensor) -> Tensor:
         (roll, pitch, yaw) in radians, float64, from ``rwalk.exactmath`` (the same
         bits on any CPU and in any batch). Shape: (..., 3).
     """
-    w, x, y, z = quat.to(torch.float64).unbind(-1)
-    sin_pitch = torch.clamp(2.0 * (w * y - z * x), -1.0, 1.0)
+    xp = arrayops.of(quat)
+    w, x, y, z = xp.unstack(xp.as_f64(quat))
+    sin_pitch = xp.clamp(2.0 * (w * y - z * x), -1.0, 1.0)
     # roll, asin(sin_pitch) (as exactmath.asin computes it) and yaw in one atan2 call.
     numerators = (2.0 * (w * x + y * z), sin_pitch, 2.0 * (w * z + x * y))
     denominators = (
         1.0 - 2.0 * (x * x + y * y),
-        torch.sqrt((1.0 - sin_pitch) * (1.0 + sin_pitch)),
+        xp.sqrt((1.0 - sin_pitch) * (1.0 + sin_pitch)),
         1.0 - 2.0 * (y * y + z * z),
     )
-    return exactmath.atan2(torch.stack(numerators, -1), torch.stack(denominators, -1))
+    return exactmath.atan2(xp.stack(numerators), xp.stack(denominators))
 
 
 def velocity_tracking(forward_velocity: Tensor, expected_velocity: float) -> Tensor:
     """1 - |v_x - v*|. Shape: (N,) -> (N,)."""
-    return 1.0 - (forward_velocity - expected_velocity).abs()
+    return 1.0 - abs(forward_velocity - expected_velocity)
 
 
 def contact_pattern(swing: Tensor, contact: Tensor, match: float, mismatch: float) -> Tensor:
@@ -85,21 +88,21 @@ def contact_pattern(swing: Tensor, contact: Tensor, match: float, mismatch: floa
         swing: swing flags. Shape: (N, 4) bool.
         contact: foot-ground contact flags. Shape: (N, 4) bool.
     """
-    ok = swing != contact
-    scores = torch.tensor([mismatch, match], dtype=torch.float64, device=ok.device)
-    leg = scores[ok.long()].unbind(-1)
+    xp = arrayops.of(swing, contact)
+    ok = xp.not_equal(swing, contact)
+    leg = xp.unstack(xp.select(ok, match, mismatch))
     return leg[0] + leg[1] + leg[2] + leg[3]  # left to right, not a length-dependent .sum
 
 
 def stability(rpy: Tensor) -> Tensor:
     """roll² + pitch² + yaw², added left to right. Shape: (N, 3) -> (N,)."""
-    roll, pitch, yaw = rpy.unbind(-1)
+    roll, pitch, yaw = arrayops.of(rpy).unstack(rpy)
     return roll * roll + pitch * pitch + yaw * yaw
 
 
 def lateral(y: Tensor, y0: Tensor) -> Tensor:
     """|y - y0|: sideways drift from the episode's start. Shape: (N,) -> (N,)."""
-    return (y - y0).abs()
+    return abs(y - y0)
 
 
 def compute_terms(
@@ -130,4 +133,5 @@ TILT_LIMIT = math.pi / 3
 
 def fallen(rpy: Tensor) -> Tensor:
     """|roll| > π/3 or |pitch| > π/3. Shape: (N, 3) -> (N,) bool."""
-    return (rpy[..., 0].abs() > TILT_LIMIT) | (rpy[..., 1].abs() > TILT_LIMIT)
+    roll, pitch, _ = arrayops.of(rpy).unstack(rpy)
+    return (abs(roll) > TILT_LIMIT) | (abs(pitch) > TILT_LIMIT)

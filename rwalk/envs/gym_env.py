@@ -7,7 +7,6 @@ from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
-import torch
 
 from rwalk.config import EnvConfig
 from rwalk.constants import ACTION_DIM, OBS_DIM, OBS_POS
@@ -146,18 +145,21 @@ class ResidualWalkEnv(gym.Env):
         array = np.asarray(action)
         if array.shape != (ACTION_DIM,):
             raise ValueError(f"action must have shape ({ACTION_DIM},), got {array.shape}")
-        result = self.core.step(torch.as_tensor(array).reshape(1, ACTION_DIM))
+        # The core's one-env step: numpy and floats, the same bits as its batched step.
+        result = self.core.step_single(array)
+        obs = result.obs
         info = {
-            "reward_components": {name: float(term[0]) for name, term in result.terms.items()},
-            "body_height": float(result.obs[0, OBS_POS.start + 2]),
-            "diverged": bool(result.diverged[0]),
-            **self._info(),
+            "reward_components": result.terms,
+            "body_height": float(obs[OBS_POS.start + 2]),
+            "diverged": result.diverged,
+            "phase": result.phase,
+            "lateral_offset": result.lateral_offset,
         }
         return (
-            self._observation(),
-            float(result.reward[0]),
-            bool(result.terminated[0]),
-            self._truncates and bool(result.truncated[0]),
+            obs.astype(np.float32),
+            result.reward,
+            result.terminated,
+            self._truncates and result.truncated,
             info,
         )
 
