@@ -7,6 +7,7 @@ from rwalk.core import ResidualWalkCore, StepResult
 from rwalk.envs import ResidualWalkEnv
 from rwalk.gait import BezierGaitController, GaitParameters
 from rwalk.kinematics import LegGeometry, leg_fk, leg_ik
+from rwalk.physics import Physics
 from rwalk.rewards import RewardWeights
 from rwalk.sim import BatchedSim
 
@@ -16,6 +17,7 @@ __all__ = [
     "EnvConfig",
     "GaitParameters",
     "LegGeometry",
+    "Physics",
     "ResidualWalkCore",
     "ResidualWalkEnv",
     "ResidualWalkVecEnv",

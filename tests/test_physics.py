@@ -186,3 +186,20 @@ def test_every_candidate_keeps_50_hz_and_sets_every_field():
         physics.apply(model)
         assert model.opt.timestep == physics.timestep
     assert mujoco.mjtCone(model.opt.cone).name  # still a valid model
+
+
+def test_the_standing_robot_is_at_rest_at_4_ms(flat_model):
+    m = flat_model
+    m_energy = mujoco.MjModel.from_xml_path(str(MODEL_DIR / "world_flat.xml"))
+    m_energy.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_ENERGY
+    d = mujoco.MjData(m_energy)
+    mujoco.mj_resetDataKeyframe(m_energy, d, m.key("stand").id)
+    heights, kinetic = [], []
+    for _ in range(2500):  # 10 s
+        mujoco.mj_step(m_energy, d)
+        heights.append(d.qpos[2])
+        kinetic.append(d.energy[1])
+    late = np.array(heights[-500:])
+    assert np.ptp(late) < 1e-4  # keeps its height to 0.1 mm over the last 2 s
+    assert max(kinetic[-500:]) < 1e-7  # at rest: no energy pumped in by the 4 ms step
+    assert not d.warning.number.any()
