@@ -312,9 +312,7 @@ def fidelity(argv: list[str] | None = None) -> dict:
         for label, row in rows.items():
             if label != "reference":
                 row["deviation"] = faithful(row["metrics"], reference)
-    results["cost"] = measure_costs(
-        args.only, args.cost_envs, args.cost_rounds, args.cost_window
-    )
+    results["cost"] = measure_costs(args.only, args.cost_envs, args.cost_rounds, args.cost_window)
     print(table(results))
     if args.json is not None:
         from rwalk.runners.checkpoints import atomic_write_text
