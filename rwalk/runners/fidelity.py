@@ -247,6 +247,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("--worlds", type=_worlds, default=list(WORLDS), help="flat,rough")
     parser.add_argument("--checkpoint", type=Path, help="also run this policy's closed loop")
+    parser.add_argument(
+        "--policy-only", action="store_true", help="with --checkpoint: skip the base gait"
+    )
     parser.add_argument("--cost-envs", type=_positive_int, default=256, help="envs in cost timing")
     parser.add_argument("--cost-rounds", type=_positive_int, default=3, help="alternating rounds")
     parser.add_argument("--cost-window", type=_positive_float, default=1.0, help="seconds a turn")
@@ -257,6 +260,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         args.only = ["reference", *args.only]
     if args.checkpoint is not None and not args.checkpoint.is_file():
         parser.error(f"--checkpoint {str(args.checkpoint)!r} is not a file")
+    if args.policy_only and args.checkpoint is None:
+        parser.error("--policy-only needs --checkpoint")
     return args
 
 
@@ -294,7 +299,7 @@ def _worlds(text: str) -> list[str]:
 def fidelity(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
     steps = max(1, round(args.seconds / 0.02))
-    cases = [(world, None) for world in args.worlds]
+    cases = [] if args.policy_only else [(world, None) for world in args.worlds]
     if args.checkpoint is not None:
         cases += [(f"{world} policy", policy_loader(args.checkpoint)) for world in args.worlds]
     results: dict = {"robots": args.robots, "seconds": steps * 0.02, "cases": {}, "cost": {}}

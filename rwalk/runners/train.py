@@ -70,7 +70,7 @@ class Args:
 
     num_envs: int = field(default=1024, metadata={"help": "parallel envs"})
     max_iterations: int = field(
-        default=150, metadata={"help": "PPO iterations in total, counting those of --resume"}
+        default=300, metadata={"help": "PPO iterations in total, counting those of --resume"}
     )
     max_minutes: float = field(
         default=math.inf, metadata={"help": "stop at a checkpoint after this much wall time"}
