@@ -28,13 +28,15 @@ def test_stepping_in_inference_mode_then_resetting_outside_works():
 
 def test_physics_steps_are_counted():
     core = ResidualWalkCore(QUICK, 3, seed=0)
+    k = core.decimation  # 5 substeps of 4 ms per env step
+    assert k == 5 and QUICK.settle_steps == 10
     core.reset()
-    assert core.physics_steps == {"step": 0, "settle": 3 * 10 * 10}
+    assert core.physics_steps == {"step": 0, "settle": 3 * 10 * k}
     core.step(torch.zeros(3, 12))
     core.reset(np.array([1]))
-    assert core.physics_steps == {"step": 3 * 10, "settle": 4 * 10 * 10}
+    assert core.physics_steps == {"step": 3 * k, "settle": 4 * 10 * k}
     assert core.resets == 4
-    assert core.settle_share == pytest.approx(400 / 430)
+    assert core.settle_share == pytest.approx(200 / 215)
 
 
 def test_pooled_resets_return_settled_starts_and_refill_in_one_batch():
@@ -43,19 +45,19 @@ def test_pooled_resets_return_settled_starts_and_refill_in_one_batch():
     core.reset()
     settled_before = core.physics_steps["settle"]
     core.reset(np.array([0, 2]))
-    # The empty pool was filled once: 4 starts x 10 env steps x 10 substeps.
-    assert core.physics_steps["settle"] - settled_before == 4 * 100
+    # The empty pool was filled once: 4 starts x 10 env steps x 5 substeps.
+    assert core.physics_steps["settle"] - settled_before == 4 * 10 * core.decimation
     pool = core._pool
     assert pool.uses_left.tolist() == [1, 1, 2, 2]
     np.testing.assert_array_equal(core.sim.state[[0, 2]], pool.sim.state[[0, 1]])
     assert core.episode_step[[0, 2]].tolist() == [0, 0]
-    assert core.tick[0].item() == 10 * 10 % core.controller.period
+    assert core.tick[0].item() == 10 * core.decimation % core.controller.period
     torch.testing.assert_close(core.y0[[0, 2]], core.obs[[0, 2], OBS_POS.start + 1])
     # Round robin: the next reset uses entry 2, the one after entries 3 and 0.
     core.reset(np.array([1]))
     core.reset(np.array([0, 2]))
     assert pool.uses_left.tolist() == [0, 1, 1, 1]
-    assert core.physics_steps["settle"] - settled_before == 4 * 100  # no refill yet
+    assert core.physics_steps["settle"] - settled_before == 4 * 10 * core.decimation  # no refill
     # Each entry is its own settle from its own random start.
     assert len({tuple(np.round(pool.sim.qpos[i, :2], 9)) for i in range(4)}) == 4
 

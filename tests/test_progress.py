@@ -77,10 +77,11 @@ def test_durations_read_naturally():
 def test_the_core_reports_each_settle_chunk(monkeypatch):
     import rwalk.core
 
-    monkeypatch.setattr(rwalk.core, "SETTLE_CTRL_BUDGET", 3 * 12 * 15)  # 15 substeps a chunk
+    monkeypatch.setattr(rwalk.core, "SETTLE_CTRL_BUDGET", 3 * 12 * 8)  # 8 substeps a chunk
     core = ResidualWalkCore(EnvConfig(settle_steps=4, randomize=False), 3, seed=0)
     calls = []
     core.settle_progress = lambda done, total: calls.append((done, total))
     core.reset()
-    # 4 steps x 10 substeps x 3 envs, in chunks of 15 substeps
-    assert calls == [(0, 120), (45, 120), (90, 120), (120, 120)]
+    # 4 steps x 5 substeps x 3 envs, in chunks of 8 substeps
+    assert core.decimation == 5
+    assert calls == [(0, 60), (24, 60), (48, 60), (60, 60)]
