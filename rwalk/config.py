@@ -135,17 +135,17 @@ class EnvConfig:
         if self.control_dt is None:
             return self.decimation
         substeps = round(self.control_dt / timestep)
-        if self.decimation is not None and self.decimation != substeps:
-            raise ValueError(
-                f"EnvConfig.decimation={self.decimation} x timestep {timestep:g} s = "
-                f"{self.decimation * timestep:g} s misses control_dt={self.control_dt:g} s: "
-                f"use decimation={substeps or 1} or control_dt=None"
-            )
         if substeps < 1 or abs(substeps * timestep - self.control_dt) > 1e-9 * self.control_dt:
             raise ValueError(
                 f"the physics timestep {timestep:g} s does not divide EnvConfig.control_dt="
                 f"{self.control_dt:g} s into whole substeps: choose a timestep of "
                 f"control_dt / k (e.g. {self.control_dt / max(substeps, 1):g} s)"
+            )
+        if self.decimation is not None and self.decimation != substeps:
+            raise ValueError(
+                f"EnvConfig.decimation={self.decimation} x timestep {timestep:g} s = "
+                f"{self.decimation * timestep:g} s misses control_dt={self.control_dt:g} s: "
+                f"use decimation={substeps} or control_dt=None"
             )
         if substeps > MAX_DECIMATION:
             raise ValueError(

@@ -203,3 +203,8 @@ def test_the_standing_robot_is_at_rest_at_4_ms(flat_model):
     assert np.ptp(late) < 1e-4  # keeps its height to 0.1 mm over the last 2 s
     assert max(kinetic[-500:]) < 1e-7  # at rest: no energy pumped in by the 4 ms step
     assert not d.warning.number.any()
+
+
+def test_a_decimation_with_a_timestep_that_misses_the_rate_names_the_timestep():
+    with pytest.raises(ValueError, match=r"timestep 0.003 s does not divide"):
+        EnvConfig(decimation=10).substeps(0.003)
