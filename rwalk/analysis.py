@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,7 +95,9 @@ def walk(
     sums = {key: torch.zeros(n, dtype=torch.float64) for key in ("error", "foot", "contact", "tau")}
     zeros = torch.zeros(n, 12, dtype=torch.float64)
     hips = core.geometry.hip_tensor()
-    torque = torch.from_numpy(core.sim.actuator_force)
+    with warnings.catch_warnings():  # a read-only MuJoCo output: only read here
+        warnings.simplefilter("ignore", UserWarning)
+        torque = torch.from_numpy(core.sim.actuator_force)
     controller, k = core.controller, core.decimation
     for _ in range(steps):
         action = zeros if policy is None else policy(core.obs)
