@@ -208,3 +208,10 @@ def test_the_standing_robot_is_at_rest_at_4_ms(flat_model):
 def test_a_decimation_with_a_timestep_that_misses_the_rate_names_the_timestep():
     with pytest.raises(ValueError, match=r"timestep 0.003 s does not divide"):
         EnvConfig(decimation=10).substeps(0.003)
+
+
+@pytest.mark.parametrize("flag", ["--robots", "--seconds", "--cost-rounds", "--cost-window"])
+def test_the_harness_refuses_a_non_positive_count_naming_it(flag, capsys):
+    with pytest.raises(SystemExit):
+        fidelity.parse_args([flag, "0"])
+    assert f"{flag}: expected a positive" in capsys.readouterr().err

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Callable
 from dataclasses import MISSING, fields
 from pathlib import Path
 from typing import Any, TypeVar
@@ -111,3 +112,25 @@ def require_in(obj: Any, name: str, low: float, high: float, low_open: bool = Fa
     if not (above and value <= high):
         interval = f"{'(' if low_open else '['}{low:g}, {high:g}]"
         raise ValueError(f"{flag(name)} must be in {interval}, got {value}")
+
+
+# argparse types for runners with hand-written parsers: values out of range are usage errors.
+def number_type(kind: type, check: Callable[[float], bool], wanted: str):
+    """argparse type: ``kind`` values for which ``check`` holds (NaN never does)."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+        if (isinstance(value, float) and not math.isfinite(value)) or not check(value):
+            raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}")
+        return value
+
+    return parse
+
+
+POSITIVE_INT = number_type(int, lambda v: v >= 1, "a positive integer")
+NATURAL_INT = number_type(int, lambda v: v >= 0, "an integer >= 0")
+UNIT_FLOAT = number_type(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
+POSITIVE_FLOAT = number_type(float, lambda v: v > 0.0, "a positive number")

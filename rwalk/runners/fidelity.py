@@ -37,7 +37,7 @@ import torch
 from rwalk.analysis import WalkReport, base_gait_config, walk
 from rwalk.core import ResidualWalkCore
 from rwalk.physics import Physics
-from rwalk.runners.cli import command
+from rwalk.runners.cli import POSITIVE_FLOAT, POSITIVE_INT, command
 
 PROG = command("rwalk.runners.fidelity")
 WORLDS = {"flat": "model/world_flat.xml", "rough": "model/world_train.xml"}
@@ -240,8 +240,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--robots", type=_positive_int, default=256, help="robots per run")
-    parser.add_argument("--seconds", type=_positive_float, default=20.0, help="simulated time")
+    parser.add_argument("--robots", type=POSITIVE_INT, default=256, help="robots per run")
+    parser.add_argument("--seconds", type=POSITIVE_FLOAT, default=20.0, help="simulated time")
     parser.add_argument(
         "--only", type=_names, default=list(CANDIDATES), help="comma-separated candidates"
     )
@@ -250,9 +250,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--policy-only", action="store_true", help="with --checkpoint: skip the base gait"
     )
-    parser.add_argument("--cost-envs", type=_positive_int, default=256, help="envs in cost timing")
-    parser.add_argument("--cost-rounds", type=_positive_int, default=3, help="alternating rounds")
-    parser.add_argument("--cost-window", type=_positive_float, default=1.0, help="seconds a turn")
+    parser.add_argument("--cost-envs", type=POSITIVE_INT, default=256, help="envs in cost timing")
+    parser.add_argument("--cost-rounds", type=POSITIVE_INT, default=3, help="alternating rounds")
+    parser.add_argument("--cost-window", type=POSITIVE_FLOAT, default=1.0, help="seconds a turn")
     parser.add_argument("--json", type=Path, help="save the results here")
     parser.add_argument("--plot", type=Path, help="save the cost-vs-fidelity PNG here")
     args = parser.parse_args(argv)
@@ -263,20 +263,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if args.policy_only and args.checkpoint is None:
         parser.error("--policy-only needs --checkpoint")
     return args
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    value = float(text)
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}")
-    return value
 
 
 def _names(text: str) -> list[str]:

@@ -21,7 +21,6 @@ import argparse
 import contextlib
 import io
 import json
-import math
 import sys
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -33,6 +32,7 @@ import torch
 from rwalk import EnvConfig, ResidualWalkVecEnv
 from rwalk.constants import OBS_LINVEL
 from rwalk.progress import Progress
+from rwalk.runners.cli import NATURAL_INT, POSITIVE_FLOAT, POSITIVE_INT, UNIT_FLOAT
 from rwalk.wrappers import RslRlVecEnv
 
 #: Which command wrote a checkpoint, by its "trainer" key (or its layout, in older files).
@@ -238,27 +238,6 @@ def command_name(module: str = "rwalk.runners.play") -> str:
     if spec is not None and spec.name.rsplit(".", 1)[-1] == module.rsplit(".", 1)[-1]:
         return f"python -m {spec.name}"  # the checkout shim: python -m runners.play
     return f"python -m {module}"
-
-
-def _number(kind: type, check: Callable[[float], bool], wanted: str):
-    """argparse type: ``kind`` values for which ``check`` holds (NaN never does)."""
-
-    def parse(text: str):
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
-        if (isinstance(value, float) and not math.isfinite(value)) or not check(value):
-            raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}")
-        return value
-
-    return parse
-
-
-POSITIVE_INT = _number(int, lambda v: v >= 1, "a positive integer")
-NATURAL_INT = _number(int, lambda v: v >= 0, "an integer >= 0")
-UNIT_FLOAT = _number(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
-POSITIVE_FLOAT = _number(float, lambda v: v > 0.0, "a positive number")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

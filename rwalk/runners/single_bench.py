@@ -28,6 +28,7 @@ from mujoco import rollout as mj_rollout
 from rwalk.config import EnvConfig
 from rwalk.envs.gym_env import ResidualWalkEnv
 from rwalk.physics import Physics
+from rwalk.runners.cli import POSITIVE_INT
 
 #: The physics settings measured: (label, timestep in seconds).
 CASES: tuple[tuple[str, float], ...] = (("10 x 2 ms", 0.002), ("5 x 4 ms", 0.004))
@@ -122,8 +123,10 @@ def measure(
 
 def main(argv: list[str] | None = None) -> list[SingleBench]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--steps", type=int, default=200, help="env steps per round")
-    parser.add_argument("--rounds", type=int, default=7, help="alternating rounds per case")
+    parser.add_argument("--steps", type=POSITIVE_INT, default=200, help="env steps per round")
+    parser.add_argument(
+        "--rounds", type=POSITIVE_INT, default=7, help="alternating rounds per case"
+    )
     args = parser.parse_args(argv)
     results = []
     for label, timestep in CASES:
