@@ -3,16 +3,23 @@ Bézier trot of a small MuJoCo quadruped."""
 
 from rwalk.assets import load_model, resolve_model_path, validate_model
 from rwalk.config import EnvConfig
-from rwalk.core import ResidualWalkCore, StepResult
-from rwalk.envs import ResidualWalkEnv
+from rwalk.core import Core, ResidualWalkCore, StepResult
+from rwalk.envs import AdaptiveGaitEnv, ResidualWalkEnv
 from rwalk.gait import BezierGaitController, GaitParameters
 from rwalk.kinematics import LegGeometry, leg_fk, leg_ik
 from rwalk.physics import Physics
 from rwalk.rewards import RewardWeights
 from rwalk.sim import BatchedSim
+from rwalk.tasks import TASKS, AdaptiveGaitConfig, GaitBounds, get_task
 
 __all__ = [
+    "TASKS",
+    "AdaptiveGaitConfig",
+    "AdaptiveGaitEnv",
+    "AdaptiveGaitVecEnv",
     "BatchedSim",
+    "Core",
+    "GaitBounds",
     "BezierGaitController",
     "EnvConfig",
     "GaitParameters",
@@ -23,6 +30,7 @@ __all__ = [
     "ResidualWalkVecEnv",
     "RewardWeights",
     "StepResult",
+    "get_task",
     "leg_fk",
     "leg_ik",
     "load_model",
@@ -31,15 +39,16 @@ __all__ = [
 ]
 
 GYM_ID = "rwalk/ResidualWalk-v0"
+ADAPTIVE_GYM_ID = "rwalk/AdaptiveGait-v0"
 
 
 def __getattr__(name: str):
     # The TorchRL view loads torchrl on first use only: importing torchrl switches the
     # process's multiprocessing start method to spawn, which `import rwalk` must not do.
-    if name == "ResidualWalkVecEnv":
-        from rwalk.envs.vec_env import ResidualWalkVecEnv
+    if name in ("ResidualWalkVecEnv", "AdaptiveGaitVecEnv"):
+        from rwalk.envs import vec_env
 
-        return ResidualWalkVecEnv
+        return getattr(vec_env, name)
     raise AttributeError(f"module 'rwalk' has no attribute {name!r}")
 
 
@@ -52,6 +61,13 @@ def _register() -> None:
         gymnasium.register(
             id=GYM_ID,
             entry_point="rwalk.envs.gym_env:ResidualWalkEnv",
+            max_episode_steps=1000,
+            kwargs={"max_episode_steps": None},
+        )
+    if ADAPTIVE_GYM_ID not in gymnasium.registry:
+        gymnasium.register(
+            id=ADAPTIVE_GYM_ID,
+            entry_point="rwalk.envs.gym_env:AdaptiveGaitEnv",
             max_episode_steps=1000,
             kwargs={"max_episode_steps": None},
         )

@@ -1,8 +1,13 @@
-"""The residual-walk task for N envs: a fixed step pipeline and batched resets.
+"""N envs of a task over one batched simulation: a fixed step pipeline and batched resets.
 
-Step: action -> foot residuals -> base-gait targets + residuals for K substeps
--> IK -> one batched MuJoCo rollout -> counters -> observation -> reward terms
--> terminations. The core never resets on its own: the TorchRL, Gymnasium and
+The core owns what every task shares: the simulation, seeding, resets and
+settling, termination and episode bookkeeping. A task (``rwalk.tasks``) says
+how an action becomes servo targets, which observation pieces it offers and
+which reward terms it adds up.
+
+Step: check action -> task: servo targets for K substeps (and the gait's swing
+flags) -> one batched MuJoCo rollout -> counters -> observation -> the task's
+declared reward terms -> terminations. The core never resets on its own: the TorchRL, Gymnasium and
 rsl-rl views each apply their own reset convention on top of it.
 
 Reset: each start is drawn from its own counter-based key, placed above the
@@ -40,7 +45,6 @@ from rwalk import exactmath, rng
 from rwalk.assets import load_model
 from rwalk.config import EnvConfig
 from rwalk.constants import (
-    ACTION_DIM,
     JOINT_NAMES,
     OBS_CONTACT,
     OBS_DIM,
@@ -50,9 +54,10 @@ from rwalk.constants import (
 )
 from rwalk.gait import BezierGaitController
 from rwalk.kinematics import LegGeometry
-from rwalk.rewards import TERM_NAMES, compute_terms, fallen, quat_to_rpy
+from rwalk.rewards import StepState, evaluate, fallen, quat_to_rpy
 from rwalk.sim import BatchedSim
 from rwalk.single import SingleStep, SingleStepResult
+from rwalk.tasks import Task, get_task, task_for_config
 from rwalk.terrain import Terrain
 
 #: Attempts at a start that does not fall or diverge while settling.
@@ -71,7 +76,7 @@ class StepResult(NamedTuple):
     """What one core step returns; every tensor has the batch as first dimension."""
 
     obs: Tensor
-    """Spec observation. Shape: (N, 65) float64."""
+    """The task's spec observation. Shape: (N, D) float64 (65 for residual_walk)."""
     reward: Tensor
     """Sum of the weighted terms. Shape: (N,)."""
     terms: dict[str, Tensor]
@@ -84,22 +89,36 @@ class StepResult(NamedTuple):
     """The simulation blew up this step (MuJoCo reset it). Shape: (N,) bool."""
 
 
-class ResidualWalkCore:
-    """N residual-walk envs over one batched simulation.
+class Core:
+    """N envs of one task over one batched simulation.
 
     Args:
-        config: the task.
+        config: the task's config (an ``EnvConfig``, or the task's own subclass).
         num_envs: N.
         seed: base seed in [0, 2^64); env i's k-th start uses the key
             (seed + i mod 2^64, START_STREAM, k), the same as a single env seeded
             seed + i. None draws a seed from the OS.
+        task: registry name (``rwalk.tasks.TASKS``); None picks the task whose
+            config class ``config`` is.
+
+    Raises:
+        ValueError: an unknown task (listing the known ones), or a config of
+            another task.
     """
 
-    def __init__(self, config: EnvConfig, num_envs: int, seed: int | None = None) -> None:
+    def __init__(
+        self, config: EnvConfig, num_envs: int, seed: int | None = None, task: str | None = None
+    ) -> None:
         if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         if not isinstance(config, EnvConfig):
             raise TypeError(f"config must be an EnvConfig, got {type(config).__name__}")
+        task_type = task_for_config(config) if task is None else get_task(task)
+        if type(config) is not task_type.config_type:
+            raise ValueError(
+                f"task {task_type.name!r} takes a {task_type.config_type.__name__}, got a "
+                f"{type(config).__name__}"
+            )
         self.config = config
         self.num_envs = num_envs
         self.model = load_model(config.model_path)
@@ -129,9 +148,6 @@ class ResidualWalkCore:
             raise ValueError(f"joints {JOINT_NAMES} must be consecutive in qpos")
 
         n = num_envs
-        self.tick = torch.zeros(n, dtype=torch.long)
-        """Physics substeps since gait phase 0, modulo the cycle, at the start of the
-        next step. Shape: (N,)."""
         self.episode_step = torch.zeros(n, dtype=torch.long)
         """Env steps counted towards truncation at max_episode_steps. Shape: (N,). Starts
         at 0, but a trainer may set it (rsl-rl's init_at_random_ep_len spreads the
@@ -141,8 +157,12 @@ class ResidualWalkCore:
         self.y0 = torch.zeros(n, dtype=torch.float64)
         """Torso y at the episode's start. Shape: (N,)."""
         self.obs = torch.zeros(n, OBS_DIM, dtype=torch.float64)
-        """Current spec observation. Shape: (N, 65)."""
-        self.episode_sums = {name: torch.zeros(n, dtype=torch.float64) for name in TERM_NAMES}
+        """Current sensor observation (the spec's 65 values). Shape: (N, 65)."""
+        self.task: Task = task_type(self)
+        """The task: actions, observation pieces, reward terms."""
+        self.terms = self.task.reward_terms()
+        """The task's declared reward terms, in the order they are added."""
+        self.episode_sums = {term.name: torch.zeros(n, dtype=torch.float64) for term in self.terms}
         """Per-term sums over the current episode. Each shape: (N,)."""
         self.episode_distance = torch.zeros(n, dtype=torch.float64)
         """Sum of forward velocity x control dt over the current episode. Shape: (N,)."""
@@ -151,7 +171,7 @@ class ResidualWalkCore:
             self._sensors = torch.from_numpy(self.sim.sensordata)
         self._settle_ctrl = self._base_gait_ctrl(config.settle_steps * self.decimation)
         self._stand_joints = self._base_gait_ctrl(1)[0]
-        self._settled_tick = config.settle_steps * self.decimation % self.controller.period
+        self.settled_tick = config.settle_steps * self.decimation % self.controller.period
         self._pool = _StartPool(self, config.settle_pool) if config.settle_pool else None
         self.physics_steps = {"step": 0, "settle": 0}
         """Physics substeps run so far: stepping the envs, and settling starts."""
@@ -161,12 +181,12 @@ class ResidualWalkCore:
         """Called with (physics steps done, total) of each settle: 0 first, then per chunk."""
         self._started = False
         self.seed(seed)
-        self._single = SingleStep(self) if n == 1 else None
+        self._single = SingleStep(self) if n == 1 and task_type.single_step else None
 
     #: Attributes rebuilt from the config when a core is unpickled or deep-copied.
     _REBUILT = (
         "model", "terrain", "geometry", "controller", "sim", "_sensors", "_settle_ctrl",
-        "_stand_joints", "_pool", "settle_progress", "_single",
+        "_stand_joints", "_pool", "settle_progress", "_single", "task", "terms",
     )  # fmt: skip
 
     def __getstate__(self) -> dict:
@@ -175,6 +195,8 @@ class ResidualWalkCore:
         state = {k: v for k, v in self.__dict__.items() if k not in self._REBUILT}
         state["sim_state"] = self.sim.state.copy()
         state["terrain_scale"] = self.terrain.scale
+        state["task_state"] = {k: v.clone() for k, v in self.task.state().items()}
+        state["task_name"] = self.task.name
         pool = self._pool
         if pool is not None:
             state["pool"] = (pool.sim.state.copy(), pool.obs.clone(), pool.uses_left.copy(),
@@ -185,13 +207,26 @@ class ResidualWalkCore:
         state = dict(state)
         sim_state, scale = state.pop("sim_state"), state.pop("terrain_scale")
         pool = state.pop("pool", None)
-        self.__init__(state["config"], state["num_envs"], seed=0)
+        task_state = state.pop("task_state")
+        self.__init__(state["config"], state["num_envs"], seed=0, task=state.pop("task_name"))
         if scale != self.terrain.scale:
             self.set_terrain_scale(scale)
         self.__dict__.update(state)
         self.sim.state[:] = sim_state
+        for name, value in self.task.state().items():
+            value.copy_(task_state[name])
         if pool is not None:
             self._pool.sim.state[:], self._pool.obs, self._pool.uses_left, self._pool._next = pool
+
+    @property
+    def tick(self) -> Tensor:
+        """The residual task's gait tick per env (see ``ResidualWalk.tick``). Shape: (N,)."""
+        return self.task.tick
+
+    @property
+    def seed_value(self) -> int:
+        """The seed the starts are keyed by."""
+        return self._seed
 
     @property
     def started(self) -> bool:
@@ -220,6 +255,7 @@ class ResidualWalkCore:
         pool_size = self._pool.size if self._pool is not None else 0
         self._starts_drawn = np.zeros(self.num_envs + pool_size, dtype=np.uint64)
         """Starts drawn so far by each env, then by each pool entry. Shape: (N + pool,)."""
+        self.task.seed()
         return self._seed
 
     # ------------------------------------------------------------------ reset
@@ -256,7 +292,7 @@ class ResidualWalkCore:
         else:
             self._settle_fresh(self.sim, ids, randomize)
             self.obs[rows] = _observation(self._sensors[rows])
-        self.tick[rows] = self._settled_tick
+        self.task.reset(rows)
         self.episode_step[rows] = 0
         self.walked_steps[rows] = 0
         self.y0[rows] = self.obs[rows, OBS_POS.start + 1]
@@ -381,8 +417,8 @@ class ResidualWalkCore:
         """Advance every env by one control period (``self.decimation`` substeps).
 
         Args:
-            action: residuals in [-1, 1] (values outside are clipped), per leg
-                (x, y, z) in the order FL, FR, RL, RR. Shape: (N, 12).
+            action: values in [-1, 1] (outside are clipped), as the task lays them
+                out. Shape: (N, task.action_dim).
 
         Raises:
             ValueError: wrong shape or a non-finite value (naming it).
@@ -392,16 +428,11 @@ class ResidualWalkCore:
             raise RuntimeError("call reset() on all envs before step()")
         action = self.check_action(action)
         cfg = self.config
-        residuals = action.view(self.num_envs, 4, 3) * cfg.residual_scale
-        k = self.decimation
-        ctrl, _ = self.controller.joint_targets(self.tick, k, residuals)
-        diverged = torch.from_numpy(self.sim.rollout(ctrl.numpy()))
-        self.physics_steps["step"] += self.num_envs * k
-        # Sensors are those of the last substep's start.
-        sensed_tick = self.tick + (k - 1)
+        ctrl, swing = self.task.act(action)
+        diverged = torch.from_numpy(self.sim.rollout(ctrl))
+        self.physics_steps["step"] += self.num_envs * self.decimation
         # In place, like every state update here: callers step inside torch.inference_mode
         # (rsl-rl does) and reset outside it.
-        self.tick.add_(k).remainder_(self.controller.period)
         self.episode_step += 1
         self.walked_steps += 1
 
@@ -409,16 +440,17 @@ class ResidualWalkCore:
         obs.copy_(_observation(self._sensors))
         rpy = quat_to_rpy(obs[:, OBS_QUAT])
         forward_velocity = obs[:, OBS_LINVEL.start]
-        terms = compute_terms(
+        state = StepState(
             forward_velocity=forward_velocity,
-            expected_velocity=cfg.expected_velocity,
-            swing=self.controller.is_swing(sensed_tick),
+            v_target=self.task.v_target,
+            swing=swing,  # the gait's at the last substep's start, whose sensors these are
             contact=obs[:, OBS_CONTACT] > 0.5,
             rpy=rpy,
             y=obs[:, OBS_POS.start + 1],
             y0=self.y0,
             weights=cfg.reward_weights,
         )
+        terms = evaluate(self.terms, state)
         if bool(diverged.any()):
             terms = {name: term.masked_fill(diverged, 0.0) for name, term in terms.items()}
         # Left to right, so that the reward equals sum(terms.values()) to the last bit.
@@ -428,7 +460,9 @@ class ResidualWalkCore:
         for name, term in terms.items():
             self.episode_sums[name] += term
         self.episode_distance += forward_velocity.masked_fill(diverged, 0.0) * self.control_dt
-        return StepResult(obs, reward, terms, terminated, truncated, diverged)
+        return StepResult(
+            self.task.spec_observation(), reward, terms, terminated, truncated, diverged
+        )
 
     def step_single(self, action: np.ndarray) -> SingleStepResult:
         """``step`` for a core of one env, on numpy and Python floats: the same bits,
@@ -446,7 +480,7 @@ class ResidualWalkCore:
         return self._single.step(action)
 
     def check_action(self, action: Tensor | np.ndarray) -> Tensor:
-        """Validate and clip an action batch. Returns float64 (N, 12).
+        """Validate and clip an action batch. Returns float64 (N, task.action_dim).
 
         Raises:
             ValueError: naming the action's wrong shape, dtype, device, a
@@ -461,9 +495,12 @@ class ResidualWalkCore:
             if action.device.type != "cpu":
                 raise ValueError(f"action must be on the CPU, got device {action.device}")
         action = torch.as_tensor(action)
-        expected = (self.num_envs, ACTION_DIM)
+        expected = (self.num_envs, self.task.action_dim)
         if tuple(action.shape) != expected:
-            raise ValueError(f"action must have shape {expected}, got {tuple(action.shape)}")
+            raise ValueError(
+                f"action must have shape {expected} for task {self.task.name!r} "
+                f"({self.task.action_layout}), got {tuple(action.shape)}"
+            )
         if action.dtype not in (torch.float32, torch.float64, torch.int32, torch.int64):
             raise ValueError(
                 f"action must be float32 or float64 (or integer), got dtype {action.dtype}: "
@@ -499,11 +536,37 @@ class ResidualWalkCore:
     @property
     def phase(self) -> Tensor:
         """Gait phase in [0, 1) at the start of the next step. Shape: (N,)."""
-        return self.controller.phase(self.tick)
+        return self.task.phase
 
     def phase_features(self) -> Tensor:
-        """(sin 2πφ, cos 2πφ) of the gait phase, tabulated per tick. Shape: (N, 2)."""
-        return self.controller.phase_features(self.tick)
+        """(sin 2πφ, cos 2πφ) of the gait phase. Shape: (N, 2)."""
+        return self.task.phase_features()
+
+    def piece(self, name: str) -> Tensor:
+        """A named observation piece of the task (``"observation"`` is the spec
+        observation). Shape: (N, size) float64.
+
+        Raises:
+            ValueError: naming the piece and listing the task's pieces.
+        """
+        if name == "observation":
+            return self.task.spec_observation()
+        pieces = self.task.pieces()
+        if name not in pieces:
+            raise ValueError(
+                f"task {self.task.name!r} has no observation piece {name!r}; choose from "
+                f"{('observation', *pieces)}"
+            )
+        return pieces[name].read(self.task)
+
+    def piece_size(self, name: str) -> int:
+        """Width of the piece ``name`` (see ``piece``)."""
+        if name == "observation":
+            return self.task.observation_dim
+        pieces = self.task.pieces()
+        if name not in pieces:
+            self.piece(name)  # raises, naming it
+        return pieces[name].size
 
     @property
     def settle_share(self) -> float:
@@ -515,14 +578,19 @@ class ResidualWalkCore:
         """Per-env statistics of the episodes ending in ``env_ids`` (call before reset).
 
         Returns per-term episode sums (``"sum/<term>"``), ``"length"`` (steps
-        actually walked, whatever ``episode_step`` was set to) and
-        ``"forward_velocity"`` (mean over the episode, m/s). Each shape: (M,).
+        actually walked, whatever ``episode_step`` was set to),
+        ``"forward_velocity"`` (mean over the episode, m/s) and
+        ``"target_velocity"`` (what the reward tracked, m/s). Each shape: (M,).
         """
         length = self.walked_steps[env_ids].to(torch.float64)
         log = {f"sum/{name}": total[env_ids] for name, total in self.episode_sums.items()}
         log["length"] = length
         log["forward_velocity"] = self.episode_distance[env_ids] / (
             length.clamp(min=1.0) * self.control_dt
+        )
+        target = self.task.v_target
+        log["target_velocity"] = (
+            target[env_ids] if isinstance(target, Tensor) else torch.full_like(length, target)
         )
         return log
 
@@ -536,7 +604,7 @@ def _check_memory(model, config: EnvConfig, num_envs: int, decimation: int) -> N
     """
     nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_INTEGRATION.value)
     row = 8 * (nstate + model.nsensordata + 4 * OBS_DIM)
-    per_env = row + 8 * 20 * decimation * ACTION_DIM
+    per_env = row + 8 * 20 * decimation * 12
     needed = num_envs * per_env + config.settle_pool * row
     available = _available_memory()
     if available is not None and needed > available:
@@ -573,7 +641,7 @@ class _StartPool:
     one batched rollout.
     """
 
-    def __init__(self, core: ResidualWalkCore, size: int) -> None:
+    def __init__(self, core: Core, size: int) -> None:
         self.size = size
         self.reuse = core.config.settle_reuse
         self.sim = BatchedSim(core.model, size, core.config.num_threads)
@@ -619,3 +687,7 @@ def _rpy_to_quat(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> Tensor
         ),
         dim=-1,
     )
+
+
+#: The name the core had when it ran one task; the residual task is still its default.
+ResidualWalkCore = Core

@@ -20,6 +20,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, fields
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -29,6 +30,36 @@ from rwalk.kinematics import LegGeometry, leg_ik
 
 #: Phase offset of each leg (FL, FR, RL, RR): diagonal pairs in step.
 TROT_OFFSETS: tuple[float, ...] = (0.0, 0.5, 0.5, 0.0)
+
+
+class GaitShape(NamedTuple):
+    """Per-env gait parameters that change the foot path (the rest stay those of
+    the controller's ``GaitParameters``). Each a float64 tensor broadcastable to
+    the phase's shape, e.g. (N, 1) against phases (N, K). Metres."""
+
+    step_height: Tensor
+    step_length: Tensor
+    body_height: Tensor
+
+
+def advance_phase(phase: Tensor, cycle_time: Tensor, dt: float, substeps: int) -> Tensor:
+    """Continuous gait phases over K substeps of ``dt`` at per-env cycle times.
+
+    The phase advances by dt / cycle_time per substep, so a new cycle time changes
+    how fast the phase moves, never the phase itself. Elementwise IEEE arithmetic
+    only: each env's phases are the same bits in any batch.
+
+    Args:
+        phase: phase in [0, 1) at the start of the period. Shape: (N,).
+        cycle_time: seconds per cycle. Shape: (N,).
+
+    Returns:
+        Phases at the start of substeps 0..K (column K starts the next period),
+        each in [0, 1). Shape: (N, K + 1).
+    """
+    ticks = torch.arange(substeps + 1, dtype=phase.dtype)
+    shifted = phase.unsqueeze(-1) + ticks * (dt / cycle_time).unsqueeze(-1)
+    return shifted - torch.floor(shifted)
 
 
 @dataclass(frozen=True)
@@ -212,29 +243,45 @@ class BezierGaitController:
         """Swing flags per leg at integer ticks. (...,) -> (..., 4) bool."""
         return self.swing_table[torch.remainder(tick, self.period)]
 
-    def foot_targets(self, phase: Tensor) -> tuple[Tensor, Tensor]:
+    def foot_targets(self, phase: Tensor, shape: GaitShape | None = None) -> tuple[Tensor, Tensor]:
         """Base-gait foot targets in the hip frames.
 
         Args:
             phase: gait phase in [0, 1). Shape: (...).
+            shape: per-env step height, step length and body height, each
+                broadcastable to ``phase``; None uses the controller's parameters.
 
         Returns:
             targets: foot-centre targets. Shape: (..., 4, 3).
             swing: True for legs in swing. Shape: (..., 4).
         """
         p = self.params
+        if shape is None:
+            step_height, step_length, stance_z = p.step_height, p.step_length, self.stance_z
+        else:  # the same operations as the scalar case, per env and leg
+            step_height, step_length, body_height = (v.unsqueeze(-1) for v in shape)
+            stance_z = -body_height + self.geometry.foot_radius - p.stance_depth
         leg_phase = self.leg_phases(phase)
         swing = leg_phase >= p.duty_factor
-        half = 0.5 * p.stance_sweep
+        half = 0.5 * (p.duty_factor * step_length)
         stance_s = leg_phase / p.duty_factor
         swing_t = torch.clamp((leg_phase - p.duty_factor) / (1.0 - p.duty_factor), 0.0, 1.0)
         curve = bernstein_curve(self.swing_points, swing_t)
         x = torch.where(swing, half * curve[..., 0], half * (1.0 - 2.0 * stance_s))
-        z = self.stance_z + torch.where(swing, p.step_height * curve[..., 1], 0.0)
+        z = stance_z + torch.where(swing, step_height * curve[..., 1], 0.0)
         targets = self.neutral.expand(*x.shape, 3).clone()
         targets[..., 0] = x
         targets[..., 2] = z
         return targets, swing
+
+    def swing_at(self, phase: Tensor) -> Tensor:
+        """Swing flags per leg at continuous phases. (...,) -> (..., 4) bool."""
+        return self.leg_phases(phase) >= self.params.duty_factor
+
+    def phase_features_at(self, phase: Tensor) -> Tensor:
+        """(sin 2πφ, cos 2πφ) of continuous phases, with ``rwalk.exactmath``. (...,) -> (..., 2)."""
+        angle = 2.0 * math.pi * phase
+        return torch.stack((exactmath.sin(angle), exactmath.cos(angle)), -1)
 
     def joint_targets(
         self, tick: Tensor, substeps: int, residuals: Tensor | None = None
@@ -258,3 +305,23 @@ class BezierGaitController:
             targets = targets + residuals.unsqueeze(1)
         joints, reachable = leg_ik(targets, self.geometry)
         return joints.flatten(-2), reachable
+
+    def joint_targets_at(
+        self, phases: Tensor, shape: GaitShape, residuals: Tensor | None = None
+    ) -> Tensor:
+        """Servo targets at continuous per-env phases and gait parameters.
+
+        Args:
+            phases: phase at each substep. Shape: (N, K).
+            shape: per-env parameters, each of shape (N,).
+            residuals: foot offsets in metres, hip frame, held over the period.
+                Shape: (N, 4, 3); None for the pure gait.
+
+        Returns:
+            Joint targets in actuator order. Shape: (N, K, 12).
+        """
+        targets, _ = self.foot_targets(phases, GaitShape(*(v.unsqueeze(-1) for v in shape)))
+        if residuals is not None:
+            targets = targets + residuals.unsqueeze(1)
+        joints, _ = leg_ik(targets, self.geometry, flag_unreachable=False)
+        return joints.flatten(-2)

@@ -4,7 +4,9 @@ Each function also takes numpy arrays, or floats for one env (a tuple of floats
 for a vector), with the same operations and so the same bits (``rwalk.arrayops``);
 the single Gymnasium env computes its reward on floats. Each term returns its
 unweighted value; ``RewardWeights`` holds the spec's weights, and the reward is
-exactly the sum of the weighted terms. Only elementwise IEEE arithmetic and
+exactly the sum of the weighted terms. A task declares its terms as
+``RewardTerm``s (name, weight, function of a ``StepState``); specs, episode
+sums, logs and docs take their names from that declaration. Only elementwise IEEE arithmetic and
 ``rwalk.exactmath`` (no reductions over a dimension, whose summation order
 depends on the tensor's length), so each env's terms are the same bits whatever
 the batch size and CPU.
@@ -13,15 +15,13 @@ the batch size and CPU.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, fields
+from typing import NamedTuple
 
 from torch import Tensor
 
 from rwalk import arrayops, exactmath
-
-#: Names of the reward terms, in the order they are reported.
-TERM_NAMES: tuple[str, ...] = ("velocity_tracking", "contact_pattern", "stability", "lateral")
-
 
 @dataclass(frozen=True)
 class RewardWeights:
@@ -105,26 +105,57 @@ def lateral(y: Tensor, y0: Tensor) -> Tensor:
     return abs(y - y0)
 
 
-def compute_terms(
-    *,
-    forward_velocity: Tensor,
-    expected_velocity: float,
-    swing: Tensor,
-    contact: Tensor,
-    rpy: Tensor,
-    y: Tensor,
-    y0: Tensor,
-    weights: RewardWeights,
-) -> dict[str, Tensor]:
-    """All weighted terms by name (each shape (N,)); the reward is their sum."""
-    return {
-        "velocity_tracking": weights.velocity_tracking
-        * velocity_tracking(forward_velocity, expected_velocity),
-        "contact_pattern": weights.contact_pattern
-        * contact_pattern(swing, contact, weights.contact_match, weights.contact_mismatch),
-        "stability": weights.stability * stability(rpy),
-        "lateral": weights.lateral * lateral(y, y0),
-    }
+class StepState(NamedTuple):
+    """What reward terms read after a step: a batch of tensors, or floats for one env."""
+
+    forward_velocity: Tensor
+    """Torso v_x, world frame. Shape: (N,). m/s."""
+    v_target: Tensor | float
+    """Velocity the gait should walk at. Shape: (N,) or a float. m/s."""
+    swing: Tensor
+    """Swing flags of the gait at the sensed substep. Shape: (N, 4) bool."""
+    contact: Tensor
+    """Foot-ground contact flags. Shape: (N, 4) bool."""
+    rpy: Tensor
+    """Roll, pitch, yaw. Shape: (N, 3). Radians."""
+    y: Tensor
+    """Torso y. Shape: (N,). Metres."""
+    y0: Tensor
+    """Torso y at the episode's start. Shape: (N,). Metres."""
+    weights: RewardWeights
+    """The config's weights (for the contact scores)."""
+
+
+@dataclass(frozen=True)
+class RewardTerm:
+    """One reward term: the reward adds ``weight * fn(state)`` under ``name``."""
+
+    name: str
+    weight: float
+    fn: Callable[[StepState], Tensor]
+    """Unweighted value from a ``StepState``. Shape: (N,) (a float for one env)."""
+
+
+def spec_terms(weights: RewardWeights) -> tuple[RewardTerm, ...]:
+    """The spec's four terms, in the order they are reported and added."""
+    return (
+        RewardTerm("velocity_tracking", weights.velocity_tracking,
+                   lambda s: velocity_tracking(s.forward_velocity, s.v_target)),
+        RewardTerm("contact_pattern", weights.contact_pattern,
+                   lambda s: contact_pattern(s.swing, s.contact, s.weights.contact_match,
+                                             s.weights.contact_mismatch)),
+        RewardTerm("stability", weights.stability, lambda s: stability(s.rpy)),
+        RewardTerm("lateral", weights.lateral, lambda s: lateral(s.y, s.y0)),
+    )  # fmt: skip
+
+
+#: Names of the spec's reward terms, in the order they are reported.
+TERM_NAMES: tuple[str, ...] = tuple(term.name for term in spec_terms(RewardWeights()))
+
+
+def evaluate(terms: tuple[RewardTerm, ...], state: StepState) -> dict[str, Tensor]:
+    """Each weighted term by name (each shape (N,), or a float for one env)."""
+    return {term.name: term.weight * term.fn(state) for term in terms}
 
 
 #: Roll or pitch beyond this ends the episode (the robot fell). Radians.

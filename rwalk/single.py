@@ -3,7 +3,7 @@
 ``ResidualWalkCore.step`` spends most of a one-env step in the fixed cost of
 some 150 small torch calls (~1.4 µs each), against ~100 µs of physics for five
 4 ms substeps. ``SingleStep`` runs the same pipeline with the same functions
-(``leg_ik``, ``quat_to_rpy``, ``compute_terms``, ``fallen``: each written once
+(``leg_ik``, ``quat_to_rpy``, the declared reward terms, ``fallen``: each written once
 for tensors, arrays and floats, see ``rwalk.arrayops``) on numpy arrays for the
 K x 4 legs' inverse kinematics and on Python floats for the observation's
 handful of values, and calls MuJoCo directly. Same operations in the same
@@ -22,7 +22,7 @@ import torch
 
 from rwalk.constants import ACTION_DIM, OBS_CONTACT
 from rwalk.kinematics import leg_ik
-from rwalk.rewards import compute_terms, fallen, quat_to_rpy
+from rwalk.rewards import StepState, evaluate, fallen, quat_to_rpy
 
 if TYPE_CHECKING:
     from rwalk.core import ResidualWalkCore
@@ -123,9 +123,9 @@ class SingleStep:
         rpy = quat_to_rpy(tuple(values[3:7]))
         y0 = float(self._y0[0])
         forward_velocity = values[7]
-        terms = compute_terms(
+        state = StepState(
             forward_velocity=forward_velocity,
-            expected_velocity=cfg.expected_velocity,
+            v_target=cfg.expected_velocity,
             swing=swing,
             contact=tuple(v > 0.5 for v in values[OBS_CONTACT]),
             rpy=rpy,
@@ -133,6 +133,7 @@ class SingleStep:
             y0=y0,
             weights=cfg.reward_weights,
         )
+        terms = evaluate(core.terms, state)
         if diverged:
             terms = dict.fromkeys(terms, 0.0)
             forward_velocity = 0.0

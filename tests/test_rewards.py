@@ -5,8 +5,10 @@ import torch
 
 from rwalk.rewards import (
     RewardWeights,
-    compute_terms,
+    StepState,
     contact_pattern,
+    evaluate,
+    spec_terms,
     fallen,
     lateral,
     quat_to_rpy,
@@ -65,9 +67,9 @@ def test_fallen_at_sixty_degrees_of_roll_or_pitch():
 
 def test_weighted_terms_are_the_spec_formulas():
     weights = RewardWeights()
-    terms = compute_terms(
+    state = StepState(
         forward_velocity=torch.tensor([0.1], dtype=F64),
-        expected_velocity=0.08 / 0.6,
+        v_target=0.08 / 0.6,
         swing=torch.tensor([[True, False, False, True]]),
         contact=torch.tensor([[False, True, True, False]]),
         rpy=torch.tensor([[0.1, -0.2, 0.3]], dtype=F64),
@@ -75,6 +77,7 @@ def test_weighted_terms_are_the_spec_formulas():
         y0=torch.tensor([0.1], dtype=F64),
         weights=weights,
     )
+    terms = evaluate(spec_terms(weights), state)
     assert list(terms) == ["velocity_tracking", "contact_pattern", "stability", "lateral"]
     assert terms["velocity_tracking"].item() == pytest.approx(300 * (1 - (0.08 / 0.6 - 0.1)))
     assert terms["contact_pattern"].item() == pytest.approx(4 * 0.05)

@@ -1,16 +1,16 @@
-"""Views of the residual-walk task: batched TorchRL env and Gymnasium single env.
+"""Views of the tasks: batched TorchRL envs and Gymnasium single envs.
 
-``ResidualWalkVecEnv`` (and with it torchrl) is imported on first use.
+The TorchRL views (and with them torchrl) are imported on first use.
 """
 
-from rwalk.envs.gym_env import ResidualWalkEnv
+from rwalk.envs.gym_env import AdaptiveGaitEnv, ResidualWalkEnv
 
-__all__ = ["ResidualWalkEnv", "ResidualWalkVecEnv"]
+__all__ = ["AdaptiveGaitEnv", "AdaptiveGaitVecEnv", "ResidualWalkEnv", "ResidualWalkVecEnv"]
 
 
 def __getattr__(name: str):
-    if name == "ResidualWalkVecEnv":
-        from rwalk.envs.vec_env import ResidualWalkVecEnv
+    if name in ("ResidualWalkVecEnv", "AdaptiveGaitVecEnv"):
+        from rwalk.envs import vec_env
 
-        return ResidualWalkVecEnv
+        return getattr(vec_env, name)
     raise AttributeError(f"module 'rwalk.envs' has no attribute {name!r}")

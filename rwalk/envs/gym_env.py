@@ -1,4 +1,5 @@
-"""``ResidualWalkEnv``: the spec's single environment, a Gymnasium view of the core with N=1."""
+"""The spec's single environments, Gymnasium views of the core with N=1:
+``ResidualWalkEnv`` and ``AdaptiveGaitEnv``."""
 
 from __future__ import annotations
 
@@ -8,10 +9,14 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
+import torch
+
 from rwalk.config import EnvConfig
-from rwalk.constants import ACTION_DIM, OBS_DIM, OBS_POS
-from rwalk.core import ResidualWalkCore
+from rwalk.constants import ACTION_DIM, OBS_POS
+from rwalk.core import Core
 from rwalk.gait import GaitParameters
+from rwalk.tasks import AdaptiveGaitConfig, GaitBounds
+from rwalk.tasks.adaptive_gait import ADAPTED
 
 _SPEC_DEFAULTS = {
     "model_path": "model/world_train.xml",
@@ -69,6 +74,8 @@ class ResidualWalkEnv(gym.Env):
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 50}
+    #: The core's task.
+    task: ClassVar[str] = "residual_walk"
 
     def __init__(
         self,
@@ -92,7 +99,7 @@ class ResidualWalkEnv(gym.Env):
             "settle_steps": settle_steps,
         }
         if config is None:
-            config = EnvConfig(**spec_args)
+            config = self._config(spec_args)
         elif spec_args != _SPEC_DEFAULTS:
             raise ValueError("pass either config or the spec's constructor arguments, not both")
         elif (
@@ -106,10 +113,16 @@ class ResidualWalkEnv(gym.Env):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
-        self.core = ResidualWalkCore(config, 1, seed=seed)
-        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (ACTION_DIM,), np.float32)
+        self.core = Core(config, 1, seed=seed, task=self.task)
+        task = self.core.task
+        self.observation_space = gym.spaces.Box(
+            -np.inf, np.inf, (task.observation_dim,), np.float32
+        )
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (task.action_dim,), np.float32)
         self._renderer = None
+
+    def _config(self, spec_args: dict[str, Any]) -> EnvConfig:
+        return EnvConfig(**spec_args)
 
     @property
     def config(self) -> EnvConfig:
@@ -144,7 +157,10 @@ class ResidualWalkEnv(gym.Env):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         array = np.asarray(action)
         if array.shape != (ACTION_DIM,):
-            raise ValueError(f"action must have shape ({ACTION_DIM},), got {array.shape}")
+            raise ValueError(
+                f"action must have shape ({ACTION_DIM},) ({self.core.task.action_layout}), got "
+                f"{array.shape}"
+            )
         # The core's one-env step: numpy and floats, the same bits as its batched step.
         result = self.core.step_single(array)
         obs = result.obs
@@ -164,7 +180,7 @@ class ResidualWalkEnv(gym.Env):
         )
 
     def _observation(self) -> np.ndarray:
-        return self.core.obs[0].numpy().astype(np.float32)
+        return self.core.task.spec_observation()[0].numpy().astype(np.float32)
 
     def _info(self) -> dict[str, float]:
         core = self.core
@@ -193,3 +209,91 @@ class ResidualWalkEnv(gym.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+class AdaptiveGaitEnv(ResidualWalkEnv):
+    """Foot residuals on a trot whose gait the policy also changes (AdaptiveGaitEnv.md).
+
+    ## Action Space
+    ``Box(-1, 1, (16,), float32)``: ``[0:4]`` deltas of step_height, step_length,
+    cycle_time and body_height (``action x delta`` added each step, then clipped
+    to the range); ``[4:16]`` the 12 foot residuals of ``ResidualWalkEnv``.
+
+    ## Observation Space
+    ``Box(-inf, inf, (69,), float32)``: the 65 values of ``ResidualWalkEnv``, then
+    the four current gait parameters, each ``(value - centre) / half_width`` of
+    its range.
+
+    ## Rewards, Starting State, Episode End
+    As ``ResidualWalkEnv``; the velocity term tracks the episode's target
+    velocity: the starting gait's ``step_length / cycle_time``, or a draw from
+    ``command_range``. Each reset returns the parameters to ``gait_params``.
+
+    ## Info
+    As ``ResidualWalkEnv``, plus ``gait_params`` (the four current values, SI
+    units) and ``target_velocity`` (m/s).
+
+    ## Arguments
+    Those of ``ResidualWalkEnv`` plus ``bounds`` (a ``GaitBounds``: range and
+    delta scale of each parameter) and ``command_range`` (None, or (low, high)
+    m/s); or ``config`` (an ``AdaptiveGaitConfig``) for everything.
+    """
+
+    task: ClassVar[str] = "adaptive_gait"
+
+    def __init__(
+        self,
+        model_path: str | os.PathLike[str] = "model/world_train.xml",
+        gait_params: GaitParameters | None = None,
+        residual_scale: float = 0.02,
+        max_episode_steps: int | None = 1000,
+        settle_steps: int = 500,
+        seed: int | None = None,
+        *,
+        bounds: GaitBounds | None = None,
+        command_range: tuple[float, float] | None = None,
+        config: AdaptiveGaitConfig | None = None,
+        render_mode: str | None = None,
+    ) -> None:
+        self._adaptive = {"bounds": bounds or GaitBounds(), "command_range": command_range}
+        if config is not None and (bounds is not None or command_range is not None):
+            raise ValueError("pass either config or bounds/command_range, not both")
+        super().__init__(
+            model_path, gait_params, residual_scale, max_episode_steps, settle_steps, seed,
+            config=config, render_mode=render_mode,
+        )  # fmt: skip
+
+    def _config(self, spec_args: dict[str, Any]) -> EnvConfig:
+        return AdaptiveGaitConfig(**spec_args, **self._adaptive)
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        array = np.asarray(action)
+        dim = self.core.task.action_dim
+        if array.shape != (dim,):
+            raise ValueError(
+                f"action must have shape ({dim},) ({self.core.task.action_layout}), got "
+                f"{array.shape}"
+            )
+        result = self.core.step(torch.as_tensor(array).reshape(1, dim))
+        info = {
+            "reward_components": {name: float(term[0]) for name, term in result.terms.items()},
+            "body_height": float(self.core.obs[0, OBS_POS.start + 2]),
+            "diverged": bool(result.diverged[0]),
+            **self._info(),
+        }
+        return (
+            result.obs[0].numpy().astype(np.float32),
+            float(result.reward[0]),
+            bool(result.terminated[0]),
+            self._truncates and bool(result.truncated[0]),
+            info,
+        )
+
+    def _info(self) -> dict[str, Any]:
+        task = self.core.task
+        params = task.gait_params()[0].tolist()
+        return {
+            **super()._info(),
+            "gait_params": dict(zip(ADAPTED, params, strict=True)),
+            "target_velocity": float(task.v_target[0]),
+        }

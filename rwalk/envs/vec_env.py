@@ -1,4 +1,4 @@
-"""``ResidualWalkVecEnv``: the batched task as a TorchRL ``EnvBase``."""
+"""The batched tasks as TorchRL ``EnvBase``s: ``ResidualWalkVecEnv``, ``AdaptiveGaitVecEnv``."""
 
 from __future__ import annotations
 
@@ -7,20 +7,23 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from typing import ClassVar
+
 from rwalk.config import EnvConfig
-from rwalk.constants import ACTION_DIM, OBS_DIM, OBS_POS
-from rwalk.core import ResidualWalkCore
-from rwalk.rewards import TERM_NAMES
+from rwalk.core import Core
+from rwalk.tasks import get_task
 
 
 class ResidualWalkVecEnv(EnvBase):
-    """N residual-walk envs stepped together (``batch_size=(num_envs,)``).
+    """N envs of a task stepped together (``batch_size=(num_envs,)``); the
+    residual-walk task unless ``task`` names another.
 
     Keys (all float32 unless noted; N = num_envs):
 
     - ``observation`` (N, 65): the spec's observation (see docs/environment.md).
     - ``phase`` (N, 2): sin and cos of 2π x the gait phase (not in the spec).
     - ``lateral_offset`` (N, 1): y - y0, the drift the lateral penalty sees (not in the spec).
+    - any other extra piece of the task (``command`` of a commanded adaptive task).
     - ``action`` (N, 12) in [-1, 1]: foot residuals FL, FR, RL, RR x (x, y, z); clipped.
     - ``reward`` (N, 1), ``done`` / ``terminated`` / ``truncated`` (N, 1) bool.
     - ``("reward_terms", name)`` (N, 1): each weighted reward term; they sum to ``reward``.
@@ -35,7 +38,11 @@ class ResidualWalkVecEnv(EnvBase):
         config: the task; defaults to the spec's.
         seed: seed for the starts; None draws one from the OS.
         device: only "cpu" (the simulation runs on the CPU).
+        task: registry name; None uses the class's (``residual_walk`` here).
     """
+
+    #: The task when none is named.
+    task: ClassVar[str] = "residual_walk"
 
     def __init__(
         self,
@@ -43,27 +50,38 @@ class ResidualWalkVecEnv(EnvBase):
         config: EnvConfig | None = None,
         seed: int | None = None,
         device: str | torch.device = "cpu",
+        task: str | None = None,
     ) -> None:
         if torch.device(device).type != "cpu":
-            raise ValueError(f"ResidualWalkVecEnv runs on the CPU only, got device {device!r}")
-        self.core = ResidualWalkCore(config or EnvConfig(), num_envs, seed=seed)
+            raise ValueError(f"{type(self).__name__} runs on the CPU only, got device {device!r}")
+        task_type = get_task(task or self.task)
+        self.core = Core(config or task_type.config_type(), num_envs, seed=seed, task=task_type.name)
         super().__init__(device="cpu", batch_size=torch.Size([num_envs]))
         self.rng = torch.Generator()
         if seed is not None:
             self.rng.manual_seed(seed)
         n = num_envs
+        core = self.core
+        self.extras = core.task.extras()
+        """Keys of the task's pieces beside the observation."""
+        pieces = {
+            name: Bounded(-1.0, 1.0, shape=(n, 2), dtype=torch.float32)
+            if name == "phase"
+            else Unbounded(shape=(n, core.piece_size(name)), dtype=torch.float32)
+            for name in ("observation", *self.extras)
+        }
         self.observation_spec = Composite(
-            observation=Unbounded(shape=(n, OBS_DIM), dtype=torch.float32),
-            phase=Bounded(-1.0, 1.0, shape=(n, 2), dtype=torch.float32),
-            lateral_offset=Unbounded(shape=(n, 1), dtype=torch.float32),
+            **pieces,
             reward_terms=Composite(
-                {name: Unbounded(shape=(n, 1), dtype=torch.float32) for name in TERM_NAMES},
+                {t.name: Unbounded(shape=(n, 1), dtype=torch.float32) for t in core.terms},
                 shape=(n,),
             ),
             diverged=Unbounded(shape=(n, 1), dtype=torch.bool),
             shape=(n,),
         )
-        self.action_spec = Bounded(-1.0, 1.0, shape=(n, ACTION_DIM), dtype=torch.float32)
+        self.action_spec = Bounded(
+            -1.0, 1.0, shape=(n, core.task.action_dim), dtype=torch.float32
+        )
         self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32)
         flag = Categorical(2, shape=(n, 1), dtype=torch.bool)
         self.done_spec = Composite(
@@ -80,7 +98,7 @@ class ResidualWalkVecEnv(EnvBase):
 
     @property
     def expected_velocity(self) -> float:
-        """step_length / cycle_time of the fixed gait. m/s."""
+        """step_length / cycle_time of the (starting) gait. m/s."""
         return self.core.config.expected_velocity
 
     def set_terrain_scale(self, scale: float) -> None:
@@ -104,7 +122,7 @@ class ResidualWalkVecEnv(EnvBase):
             self.core.reset(mask.reshape(-1))
         zeros = torch.zeros(n, dtype=torch.float64)
         no = torch.zeros(n, dtype=torch.bool)
-        out = self._outputs(dict.fromkeys(TERM_NAMES, zeros), zeros, no, no, no)
+        out = self._outputs({t.name: zeros for t in self.core.terms}, zeros, no, no, no)
         return out.exclude("reward")
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -120,12 +138,12 @@ class ResidualWalkVecEnv(EnvBase):
         truncated: torch.Tensor,
     ) -> TensorDict:
         core = self.core
-        lateral = core.obs[:, OBS_POS.start + 1] - core.y0
         return TensorDict(
             {
-                "observation": core.obs.to(torch.float32),
-                "phase": core.phase_features().to(torch.float32),
-                "lateral_offset": lateral.to(torch.float32).unsqueeze(-1),
+                **{
+                    name: core.piece(name).to(torch.float32)
+                    for name in ("observation", *self.extras)
+                },
                 "reward_terms": {
                     name: term.to(torch.float32).unsqueeze(-1) for name, term in terms.items()
                 },
@@ -141,3 +159,15 @@ class ResidualWalkVecEnv(EnvBase):
     def _set_seed(self, seed: int | None) -> None:
         used = self.core.seed(seed)
         self.rng.manual_seed(used)
+
+
+class AdaptiveGaitVecEnv(ResidualWalkVecEnv):
+    """N adaptive-gait envs (AdaptiveGaitEnv.md) stepped together.
+
+    Keys as ``ResidualWalkVecEnv``, but ``observation`` is (N, 69) (the 65 values,
+    then the four gait parameters normalised to [-1, 1]) and ``action`` (N, 16)
+    (four gait deltas, then the 12 residuals). With ``command_range`` set in the
+    config, ``command`` (N, 1) holds each episode's target velocity (m/s).
+    """
+
+    task: ClassVar[str] = "adaptive_gait"

@@ -8,10 +8,9 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from rwalk.constants import OBS_POS
 from rwalk.envs.vec_env import ResidualWalkVecEnv
 
-#: Observation pieces a group can be made of.
+#: Observation pieces of the residual task's groups (a task may offer more, e.g. ``command``).
 OBS_PIECES = ("observation", "phase", "lateral_offset")
 
 
@@ -20,8 +19,11 @@ class RslRlVecEnv(VecEnv):
     groups as a TensorDict, ``extras["time_outs"]`` and ``extras["log"]``.
 
     Observation groups (each a (N, D) float32 tensor, pieces concatenated):
-    ``policy`` and ``critic``, from ``observation`` (65, the spec's), ``phase``
-    (2, sin/cos of the gait phase) and ``lateral_offset`` (1, y - y0).
+    ``policy`` and ``critic``, from the task's named pieces: ``observation``
+    (the spec's: 65 values, 69 for adaptive_gait), ``phase`` (2, sin/cos of the
+    gait phase), ``lateral_offset`` (1, y - y0), and any other piece of the task
+    (``command``, ``gait``, ``sensors``). None takes the observation and every
+    extra piece of the task.
 
     ``extras["log"]`` (means over the episodes that ended this step):
     ``Episode_Reward/<term>`` (per-step mean of each reward term),
@@ -40,13 +42,15 @@ class RslRlVecEnv(VecEnv):
     def __init__(
         self,
         env: ResidualWalkVecEnv,
-        policy_obs: tuple[str, ...] = ("observation", "phase", "lateral_offset"),
-        critic_obs: tuple[str, ...] = ("observation", "phase", "lateral_offset"),
+        policy_obs: tuple[str, ...] | None = None,
+        critic_obs: tuple[str, ...] | None = None,
         reward_scale: float = 1.0,
     ) -> None:
+        every = ("observation", *env.core.task.extras())
+        policy_obs = every if policy_obs is None else policy_obs
+        critic_obs = every if critic_obs is None else critic_obs
         for name in (*policy_obs, *critic_obs):
-            if name not in OBS_PIECES:
-                raise ValueError(f"unknown observation piece {name!r}; choose from {OBS_PIECES}")
+            env.core.piece_size(name)  # raises ValueError naming an unknown piece
         if not reward_scale > 0:
             raise ValueError(f"reward_scale must be > 0, got {reward_scale!r}")
         self.env = env
@@ -73,11 +77,7 @@ class RslRlVecEnv(VecEnv):
 
     def get_observations(self) -> TensorDict:
         core = self.core
-        pieces = {
-            "observation": core.obs,
-            "phase": core.phase_features(),
-            "lateral_offset": (core.obs[:, OBS_POS.start + 1] - core.y0).unsqueeze(-1),
-        }
+        pieces = {name: core.piece(name) for names in self.groups.values() for name in names}
         return TensorDict(
             {
                 group: torch.cat([pieces[name] for name in names], dim=-1).to(torch.float32)
@@ -109,7 +109,7 @@ class RslRlVecEnv(VecEnv):
         log["Episode/length"] = length.mean()
         log["Episode/fall_rate"] = result.terminated[ids].double().mean()
         log["Episode/forward_velocity"] = velocity.mean()
-        log["Episode/velocity_error"] = (velocity - self.core.config.expected_velocity).abs().mean()
+        log["Episode/velocity_error"] = (velocity - stats["target_velocity"]).abs().mean()
         log["Episode/diverged"] = result.diverged[ids].double().mean()
         log["Perf/settle_share"] = torch.tensor(self.core.settle_share)
         return log

@@ -1,0 +1,249 @@
+"""The adaptive-gait task (spec: AdaptiveGaitEnv.md): the policy also changes the gait.
+
+Action (N, 16): ``[0:4]`` deltas of step_height, step_length, cycle_time and
+body_height (``action x delta``, added each step, clipped to the range), then
+the 12 foot residuals of the residual task. Observation (N, 69): the 65 sensor
+values, then the four current parameters normalised to [-1, 1] over their
+ranges. Every env carries its own parameters and a continuous phase: a new
+cycle time changes how fast the phase advances, never the phase itself.
+
+Default ranges, for this robot (legs 0.05 + 0.06 m, hip-to-foot reach
+0.026..0.109 m, servos ~6 rad/s, bumps up to ~3 cm):
+
+- step_height 0.01..0.04 m: the apex clears the bumps; its top stays below the
+  lowest body height, with room for the swing leg to fold.
+- step_length 0..0.16 m: from stepping in place to a stride whose stance sweep
+  (0.65 x 0.16 = 0.10 m) the legs reach at every body height in range.
+- cycle_time 0.3..0.9 s: 0.3 s leaves 0.1 s swings, about what the servos follow.
+- body_height 0.05..0.09 m: crouched to nearly stretched (the stance line at
+  0.09 m lies 0.0925 m below the hip, inside the 0.109 m reach).
+
+Each delta scale is a twentieth of its range: a full sweep takes 20 steps,
+0.4 s, fast enough to react to a bump within a stride, slow enough that one
+noisy action cannot jump the gait.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from rwalk import rng
+from rwalk.config import EnvConfig
+from rwalk.constants import ACTION_DIM
+from rwalk.gait import BezierGaitController, GaitParameters, GaitShape, advance_phase
+from rwalk.tasks.base import ObsPiece, Task
+
+#: The adapted parameters, in the order of the action's and observation's values.
+ADAPTED: tuple[str, ...] = ("step_height", "step_length", "cycle_time", "body_height")
+#: Random stream of the per-episode velocity commands (see ``rwalk.rng``).
+COMMAND_STREAM = "command"
+
+
+class Bound(NamedTuple):
+    """Range of one adapted parameter and its change per unit of action per step."""
+
+    low: float
+    high: float
+    delta: float
+
+
+@dataclass(frozen=True)
+class GaitBounds:
+    """Ranges and delta scales of the adapted parameters (metres, seconds)."""
+
+    step_height: Bound = Bound(0.01, 0.04, 0.0015)
+    step_length: Bound = Bound(0.0, 0.16, 0.008)
+    cycle_time: Bound = Bound(0.3, 0.9, 0.03)
+    body_height: Bound = Bound(0.05, 0.09, 0.002)
+
+    def __post_init__(self) -> None:
+        for name in ADAPTED:
+            value = getattr(self, name)
+            if not (
+                isinstance(value, tuple)
+                and len(value) == 3
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+                and all(math.isfinite(v) for v in value)
+            ):
+                raise ValueError(
+                    f"GaitBounds.{name} must be (low, high, delta), finite numbers, got {value!r}"
+                )
+            object.__setattr__(self, name, Bound(*(float(v) for v in value)))
+            low, high, delta = getattr(self, name)
+            if not low < high:
+                raise ValueError(f"GaitBounds.{name}: low must be < high, got {value!r}")
+            if not delta > 0:
+                raise ValueError(f"GaitBounds.{name}: delta must be > 0, got {value!r}")
+        positive = ("step_height", "cycle_time", "body_height")
+        for name in positive:
+            if not getattr(self, name).low > 0:
+                raise ValueError(f"GaitBounds.{name}: low must be > 0, got {getattr(self, name)!r}")
+        if self.step_length.low < 0:
+            raise ValueError(f"GaitBounds.step_length: low must be >= 0, got {self.step_length!r}")
+        if self.step_height.high >= self.body_height.low:
+            raise ValueError(
+                f"GaitBounds.step_height: its high ({self.step_height.high!r} m) could reach the "
+                f"body height (body_height low {self.body_height.low!r} m); keep it below"
+            )
+
+    def as_tensors(self) -> tuple[Tensor, Tensor, Tensor]:
+        """low, high, delta of the four parameters in ``ADAPTED`` order. Each (4,) float64."""
+        rows = [getattr(self, name) for name in ADAPTED]
+        return tuple(torch.tensor(col, dtype=torch.float64) for col in zip(*rows, strict=True))
+
+
+@dataclass(frozen=True)
+class AdaptiveGaitConfig(EnvConfig):
+    """``EnvConfig`` plus the adaptation bounds and optional velocity commands.
+
+    ``gait`` is the gait every episode starts from (and settles with).
+    """
+
+    bounds: GaitBounds = field(default_factory=GaitBounds)
+    """Ranges and delta scales of the adapted parameters."""
+    command_range: tuple[float, float] | None = None
+    """None: the target velocity is the starting gait's step_length / cycle_time.
+    (low, high): each episode draws its target uniformly from it (m/s), and the
+    views expose it as ``command``."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not isinstance(self.bounds, GaitBounds):
+            raise TypeError(
+                f"AdaptiveGaitConfig.bounds must be a GaitBounds, got {type(self.bounds).__name__}"
+            )
+        for name in ADAPTED:
+            low, high, _ = getattr(self.bounds, name)
+            start = getattr(self.gait, name)
+            if not low <= start <= high:
+                raise ValueError(
+                    f"GaitBounds.{name}: the starting gait's {name}={start!r} is outside "
+                    f"[{low!r}, {high!r}]"
+                )
+        if self.command_range is not None:
+            value = self.command_range
+            if not (
+                isinstance(value, tuple)
+                and len(value) == 2
+                and all(isinstance(v, (int, float)) and math.isfinite(v) for v in value)
+                and value[0] <= value[1]
+            ):
+                raise ValueError(
+                    "AdaptiveGaitConfig.command_range must be None or (low, high) m/s with "
+                    f"low <= high, got {value!r}"
+                )
+
+    def corner_gaits(self) -> list[tuple[str, GaitParameters]]:
+        """The starting gait at each extreme of the body height with the longest
+        stride: the stance line must be reachable in all of them."""
+        b = self.bounds
+        return [
+            ("body_height", dataclasses.replace(
+                self.gait, body_height=h, step_length=b.step_length.high,
+                step_height=min(self.gait.step_height, 0.5 * h)))
+            for h in (b.body_height.low, b.body_height.high)
+        ]  # fmt: skip
+
+
+class AdaptiveGait(Task):
+    """Gait deltas and foot residuals; see the module docstring."""
+
+    name = "adaptive_gait"
+    config_type = AdaptiveGaitConfig
+    action_dim = len(ADAPTED) + ACTION_DIM
+    action_layout = (
+        "4 gait deltas (step_height, step_length, cycle_time, body_height), then 12 foot residuals"
+    )
+    observation = ("sensors", "gait")
+
+    def __init__(self, core) -> None:
+        super().__init__(core)
+        cfg: AdaptiveGaitConfig = core.config
+        for field_name, gait in cfg.corner_gaits():
+            try:
+                BezierGaitController(gait, core.geometry, dt=core.dt)
+            except ValueError as error:
+                raise ValueError(
+                    f"GaitBounds.{field_name}={getattr(cfg.bounds, field_name)!r}: the legs "
+                    f"cannot reach it with a {gait.step_length} m stride: {error}"
+                ) from None
+        self.low, self.high, self.delta = cfg.bounds.as_tensors()
+        self.centre = 0.5 * (self.low + self.high)
+        self.half_width = 0.5 * (self.high - self.low)
+        self.start = torch.tensor([getattr(cfg.gait, name) for name in ADAPTED])
+        n = core.num_envs
+        self.params = self.start.repeat(n, 1)
+        """Current step_height, step_length, cycle_time, body_height. Shape: (N, 4)."""
+        self.gait_phase = torch.zeros(n, dtype=torch.float64)
+        """Continuous gait phase in [0, 1) at the start of the next step. Shape: (N,)."""
+        self.target = torch.full((n,), cfg.expected_velocity, dtype=torch.float64)
+        """Target velocity of each env's episode. Shape: (N,). m/s."""
+        self._draws = np.zeros(n, dtype=np.uint64)
+
+    def pieces(self) -> dict[str, ObsPiece]:
+        pieces = super().pieces()
+        pieces["gait"] = ObsPiece(
+            len(ADAPTED), lambda task: (task.params - task.centre) / task.half_width,
+            "step_height, step_length, cycle_time, body_height, each (v - centre) / half_width")
+        pieces["command"] = ObsPiece(
+            1, lambda task: task.target.unsqueeze(-1), "the episode's target velocity (m/s)")
+        return pieces  # fmt: skip
+
+    def extras(self) -> tuple[str, ...]:
+        commanded = self.core.config.command_range is not None
+        return (*super().extras(), *(("command",) if commanded else ()))
+
+    def seed(self) -> None:
+        self._draws[:] = 0
+
+    def reset(self, rows: Tensor) -> None:
+        core = self.core
+        self.params[rows] = self.start
+        self.gait_phase[rows] = core.settled_tick / core.controller.period
+        command = core.config.command_range
+        if command is not None:
+            ids = rows.numpy().astype(np.uint64)
+            keys = rng.keys(np.uint64(core.seed_value) + ids, COMMAND_STREAM, self._draws[ids])
+            self._draws[ids] += np.uint64(1)
+            u = torch.from_numpy(rng.uniform(keys, 1)[:, 0])
+            self.target[rows] = command[0] + u * (command[1] - command[0])
+
+    def act(self, action: Tensor) -> tuple[np.ndarray, Tensor]:
+        core = self.core
+        n, k = core.num_envs, core.decimation
+        params = self.params
+        params.copy_(torch.minimum(torch.maximum(params + action[:, :4] * self.delta, self.low),
+                                   self.high))  # fmt: skip
+        residuals = action[:, 4:].reshape(n, 4, 3) * core.config.residual_scale
+        phases = advance_phase(self.gait_phase, params[:, 2], core.dt, k)
+        shape = GaitShape(params[:, 0], params[:, 1], params[:, 3])
+        ctrl = core.controller.joint_targets_at(phases[:, :k], shape, residuals)
+        swing = core.controller.swing_at(phases[:, k - 1])
+        self.gait_phase.copy_(phases[:, k])
+        return np.ascontiguousarray(ctrl.numpy()), swing
+
+    @property
+    def v_target(self) -> Tensor:
+        return self.target
+
+    @property
+    def phase(self) -> Tensor:
+        return self.gait_phase
+
+    def phase_features(self) -> Tensor:
+        return self.core.controller.phase_features_at(self.gait_phase)
+
+    def gait_params(self) -> Tensor:
+        """Current parameters in SI units. Shape: (N, 4)."""
+        return self.params
+
+    def state(self) -> dict[str, Tensor]:
+        return {"params": self.params, "gait_phase": self.gait_phase, "target": self.target,
+                "draws": torch.from_numpy(self._draws)}  # fmt: skip

@@ -1,0 +1,135 @@
+"""What a task declares, and the pieces every task shares.
+
+A task is one small module over ``rwalk.core.Core``: a ``Task`` subclass that
+says how an action becomes servo targets (``act``), which named observation
+pieces make its spec observation and which extra pieces the views offer
+(``pieces``), its reward terms (``reward_terms``, each a ``RewardTerm``), and
+what it keeps per env across a reset (``reset``). The core owns everything
+else: the simulation, seeding, resets and settling, termination and episode
+bookkeeping. Specs, ``reward_terms`` keys, ``info["reward_components"]``,
+TensorBoard tags, rsl-rl observation groups and the docs' tables are all built
+from these declarations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, ClassVar, NamedTuple
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from rwalk.config import EnvConfig
+from rwalk.constants import OBS_DIM, OBS_POS
+from rwalk.rewards import RewardTerm, spec_terms
+
+if TYPE_CHECKING:
+    from rwalk.core import Core
+
+
+class ObsPiece(NamedTuple):
+    """A named block of observation values."""
+
+    size: int
+    read: Callable[[Task], Tensor]
+    """The block for every env, float64. Shape: (N, size)."""
+    doc: str
+
+
+#: Pieces every task has. ``sensors`` is the spec's 65-D observation.
+COMMON_PIECES: dict[str, ObsPiece] = {
+    "sensors": ObsPiece(OBS_DIM, lambda task: task.core.obs,
+                        "the spec's 65 values: torso, joints, feet, contacts"),
+    "phase": ObsPiece(2, lambda task: task.phase_features(), "sin, cos of 2π x the gait phase"),
+    "lateral_offset": ObsPiece(
+        1, lambda task: (task.core.obs[:, OBS_POS.start + 1] - task.core.y0).unsqueeze(-1),
+        "torso y - y0, the drift the lateral term sees (m)"),
+}  # fmt: skip
+
+
+class Task:
+    """Base of every task; a subclass is one task (see the module docstring).
+
+    Args:
+        core: the core it runs in (built, not yet reset). A task keeps per-env
+            state as tensors of batch size ``core.num_envs``; no Python loop per env.
+    """
+
+    name: ClassVar[str]
+    """Registry name, e.g. ``"residual_walk"``."""
+    config_type: ClassVar[type[EnvConfig]] = EnvConfig
+    """The config class the task takes."""
+    action_dim: ClassVar[int]
+    """Values per env in an action."""
+    action_layout: ClassVar[str]
+    """What the action's values are, for error messages and docs."""
+    observation: ClassVar[tuple[str, ...]] = ("sensors",)
+    """Pieces that make the spec observation, in order."""
+
+    def __init__(self, core: Core) -> None:
+        self.core = core
+
+    # ------------------------------------------------------------ declarations
+    def pieces(self) -> dict[str, ObsPiece]:
+        """Every named observation piece of this task (the views choose from these)."""
+        return dict(COMMON_PIECES)
+
+    def extras(self) -> tuple[str, ...]:
+        """Pieces the views offer beside the spec observation."""
+        return ("phase", "lateral_offset")
+
+    def reward_terms(self) -> tuple[RewardTerm, ...]:
+        """The reward's terms, in the order they are added and reported."""
+        return spec_terms(self.core.config.reward_weights)
+
+    @property
+    def observation_dim(self) -> int:
+        pieces = self.pieces()
+        return sum(pieces[name].size for name in self.observation)
+
+    def spec_observation(self) -> Tensor:
+        """The spec observation of every env, float64. Shape: (N, observation_dim)."""
+        if self.observation == ("sensors",):
+            return self.core.obs
+        pieces = self.pieces()
+        return torch.cat([pieces[name].read(self) for name in self.observation], dim=-1)
+
+    # ------------------------------------------------------------ behaviour
+    def seed(self) -> None:
+        """Restart the task's own random streams (the core was reseeded)."""
+
+    def reset(self, rows: Tensor) -> None:
+        """Start the episodes of ``rows``, whose starts were just settled. Shape: (M,)."""
+        raise NotImplementedError
+
+    def act(self, action: Tensor) -> tuple[np.ndarray, Tensor]:
+        """Servo targets for the next ``core.decimation`` substeps, and advance the gait.
+
+        Args:
+            action: checked and clipped to [-1, 1], float64. Shape: (N, action_dim).
+
+        Returns:
+            ctrl: joint targets. Shape: (N, K, 12) float64, C-contiguous.
+            swing: the gait's swing flags at the start of the last substep, whose
+                sensors the step reports. Shape: (N, 4) bool.
+        """
+        raise NotImplementedError
+
+    @property
+    def v_target(self) -> Tensor | float:
+        """Velocity the reward tracks: a float, or per env (N,). m/s."""
+        return self.core.config.expected_velocity
+
+    @property
+    def phase(self) -> Tensor:
+        """Gait phase in [0, 1) at the start of the next step. Shape: (N,)."""
+        raise NotImplementedError
+
+    def phase_features(self) -> Tensor:
+        """(sin 2πφ, cos 2πφ) of the gait phase. Shape: (N, 2)."""
+        raise NotImplementedError
+
+    def state(self) -> dict[str, Tensor]:
+        """Per-env tensors to keep when the core is pickled."""
+        return {}
