@@ -57,17 +57,43 @@ DEFAULT_PIECES = ("observation", "phase", "lateral_offset")
 OPSET = 18
 
 
-def input_layout(pieces: Sequence[str]) -> list[dict[str, Any]]:
-    """Slices of the input: name, start, size and content of each piece, in order."""
-    unknown = [name for name in pieces if name not in PIECE_SIZES]
+def input_layout(
+    pieces: Sequence[str], catalog: Mapping[str, tuple[int, str]] | None = None
+) -> list[dict[str, Any]]:
+    """Slices of the input: name, start, size and content of each piece, in order.
+
+    Args:
+        catalog: size and content of each piece a task offers (``task_catalog``);
+            None: the residual task's (``PIECE_SIZES``).
+    """
+    if catalog is None:
+        catalog = {name: (PIECE_SIZES[name], PIECE_CONTENT[name]) for name in PIECE_SIZES}
+    unknown = [name for name in pieces if name not in catalog]
     if unknown or not pieces:
-        raise ValueError(f"unknown observation pieces {unknown or pieces!r}; use {DEFAULT_PIECES}")
+        raise ValueError(
+            f"unknown observation pieces {unknown or pieces!r}; use pieces of {tuple(catalog)}"
+        )
     layout, start = [], 0
     for name in pieces:
-        size = PIECE_SIZES[name]
-        layout.append({"name": name, "start": start, "size": size, "content": PIECE_CONTENT[name]})
+        size, content = catalog[name]
+        layout.append({"name": name, "start": start, "size": size, "content": content})
         start += size
     return layout
+
+
+def task_catalog(core) -> dict[str, tuple[int, str]]:
+    """Size and content of every piece the task of ``core`` offers."""
+    task = core.task
+    catalog = {
+        "observation": (
+            task.observation_dim,
+            PIECE_CONTENT["observation"]
+            if task.observation == ("sensors",)
+            else f"the task's spec observation: pieces {' + '.join(task.observation)}",
+        )
+    }
+    catalog |= {name: (piece.size, piece.doc) for name, piece in task.pieces().items()}
+    return catalog
 
 
 def policy_input(
@@ -113,13 +139,15 @@ def _policy_and_pieces(runner_or_policy, pieces: Sequence[str] | None):
             f"export_policy takes an rsl-rl OnPolicyRunner or MLPModel, "
             f"got {type(runner_or_policy).__name__}"
         )
+    env = getattr(runner_or_policy, "env", None)
+    catalog = task_catalog(env.core) if hasattr(env, "core") else None
     if pieces is None:
-        groups = getattr(getattr(runner_or_policy, "env", None), "groups", None)
+        groups = getattr(env, "groups", None)
         if groups is None:
             pieces = DEFAULT_PIECES
         else:
             pieces = tuple(name for group in policy.obs_groups for name in groups[group])
-    layout = input_layout(pieces)
+    layout = input_layout(pieces, catalog)
     size = sum(piece["size"] for piece in layout)
     if size != policy.obs_dim:
         raise ValueError(
@@ -148,12 +176,18 @@ def export_policy(
     policy, layout = _policy_and_pieces(runner_or_policy, pieces)
     folder = Path(folder)
     size = policy.obs_dim
+    env = getattr(runner_or_policy, "env", None)
+    task = env.core.task if hasattr(env, "core") else None
+    actions = task.action_dim if task is not None else ACTION_DIM
     description = {
         "input": {"name": "obs", "shape": ["batch", size], "dtype": "float32", "pieces": layout},
         "output": {
             "name": "actions",
-            "shape": ["batch", ACTION_DIM],
-            "content": "foot offsets FL, FR, RL, RR (x, y, z) in [-1, 1] units (the env clips)",
+            "shape": ["batch", actions],
+            "content": (
+                f"{task.action_layout if task is not None else 'foot offsets FL, FR, RL, RR (x, y, z)'}"
+                " in [-1, 1] units (the env clips)"
+            ),
         },
         "observation_normalizer": "included: feed raw observations",
         "files": {"torchscript": "policy.pt", "onnx": "policy.onnx"},

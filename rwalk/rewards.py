@@ -23,6 +23,7 @@ from torch import Tensor
 
 from rwalk import arrayops, exactmath
 
+
 @dataclass(frozen=True)
 class RewardWeights:
     """Weights of the spec's reward terms."""

@@ -8,7 +8,6 @@ from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
-
 import torch
 
 from rwalk.config import EnvConfig

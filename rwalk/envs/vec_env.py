@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
-
-from typing import ClassVar
 
 from rwalk.config import EnvConfig
 from rwalk.core import Core
@@ -55,7 +55,9 @@ class ResidualWalkVecEnv(EnvBase):
         if torch.device(device).type != "cpu":
             raise ValueError(f"{type(self).__name__} runs on the CPU only, got device {device!r}")
         task_type = get_task(task or self.task)
-        self.core = Core(config or task_type.config_type(), num_envs, seed=seed, task=task_type.name)
+        self.core = Core(
+            config or task_type.config_type(), num_envs, seed=seed, task=task_type.name
+        )
         super().__init__(device="cpu", batch_size=torch.Size([num_envs]))
         self.rng = torch.Generator()
         if seed is not None:
@@ -79,9 +81,7 @@ class ResidualWalkVecEnv(EnvBase):
             diverged=Unbounded(shape=(n, 1), dtype=torch.bool),
             shape=(n,),
         )
-        self.action_spec = Bounded(
-            -1.0, 1.0, shape=(n, core.task.action_dim), dtype=torch.float32
-        )
+        self.action_spec = Bounded(-1.0, 1.0, shape=(n, core.task.action_dim), dtype=torch.float32)
         self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32)
         flag = Categorical(2, shape=(n, 1), dtype=torch.bool)
         self.done_spec = Composite(

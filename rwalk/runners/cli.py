@@ -52,7 +52,8 @@ def build_parser(cls: type, description: str | None, prog: str | None = None):
         if isinstance(default, bool):
             options["action"] = argparse.BooleanOptionalAction
         elif isinstance(default, tuple):
-            kind = type(default[0]) if default else str
+            # An empty default names its item type in metadata["item"] (else str).
+            kind = f.metadata.get("item") or (type(default[0]) if default else str)
             options.update(type=kind, nargs="+", metavar=kind.__name__.upper())
         else:
             options.update(type=type(default), metavar=type(default).__name__.upper())

@@ -3,9 +3,13 @@
     rwalk-play --base-gait
     rwalk-play --checkpoint logs/rwalk/model_149.pt --video docs/policy.mp4
     rwalk-play --checkpoint logs/rwalk/model_149.pt --base-gait   # both, paired
+    rwalk-play --checkpoint logs/adaptive/model_299.pt --command 0.2   # ask for 0.2 m/s
 
 (``python -m rwalk.runners.play`` in a checkout.) Checkpoints are rsl-rl's, from
-rwalk-train (model_<it>.pt, with the config.json it writes beside them).
+rwalk-train (model_<it>.pt, with the config.json it writes beside them); the
+checkpoint's task (config.json) sets the task, --task the base gait's without one.
+--command V asks an adaptive policy trained with commands for V m/s (default:
+the starting gait's speed), and measures every row's velocity error against V.
 
 Every run uses the same starts (seed --seed: episode i starts like a single env
 seeded --seed + i), so the base gait and a policy meet exactly the same episodes. Episodes are the
@@ -29,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rwalk import EnvConfig, ResidualWalkVecEnv
+from rwalk import EnvConfig, ResidualWalkVecEnv, presets
 from rwalk.constants import OBS_LINVEL
 from rwalk.progress import Progress
 from rwalk.runners.cli import NATURAL_INT, POSITIVE_FLOAT, POSITIVE_INT, UNIT_FLOAT
@@ -60,13 +64,12 @@ def eval_config(
     terrain_scale: float = 1.0, max_steps: int = 1000, settle_steps: int = 500
 ) -> EnvConfig:
     """The spec's episodes on the rough world, starts spread over the terrain."""
-    return EnvConfig(
-        randomize=True,
-        position_noise=(0.5, 1.2),
-        terrain_scale=terrain_scale,
-        max_episode_steps=max_steps,
-        settle_steps=settle_steps,
-    )
+    return presets.evaluation_config("residual_walk", terrain_scale, max_steps, settle_steps)
+
+
+def saved_args(checkpoint: Path) -> dict:
+    """The training flags of ``checkpoint``'s run (its config.json)."""
+    return json.loads((checkpoint.parent / "config.json").read_text())["args"]
 
 
 def checkpoint_trainer(saved: dict) -> str:
@@ -111,9 +114,14 @@ def load_policy(checkpoint: Path, env: ResidualWalkVecEnv):
     from rwalk.runners.train import Args, rsl_rl_config
 
     check_checkpoint(checkpoint)
-    saved = json.loads((checkpoint.parent / "config.json").read_text())["args"]
+    saved = saved_args(checkpoint)
     args = Args(**{k: tuple(v) if isinstance(v, list) else v for k, v in saved.items()})
-    adapter = RslRlVecEnv(env, policy_obs=args.policy_obs, reward_scale=args.reward_scale)
+    if args.task != env.core.task.name:
+        raise ValueError(
+            f"checkpoint {str(checkpoint)!r} is a {args.task!r} policy; the env runs "
+            f"{env.core.task.name!r}"
+        )
+    adapter = RslRlVecEnv(env, policy_obs=args.policy_obs or None, reward_scale=args.reward_scale)
     with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the whole architecture
         runner = SafeRunner(adapter, rsl_rl_config(args), log_dir=None, device="cpu")
     runner.load(str(checkpoint))
@@ -133,19 +141,23 @@ def evaluate(
     policy=None,
     record=None,
     progress: Callable[[int, int], None] | None = None,
+    target: float | None = None,
 ) -> Evaluation:
     """Run one episode in every env of ``env`` (reset first) and summarise.
 
     Args:
         seed: env i starts like a single env seeded seed + i, whatever ran before.
-        policy: callable returning (N, 12) actions for the current state; None = base gait.
+        policy: callable returning (N, action_dim) actions for the current state;
+            None = base gait (zero actions).
         record: callable(step) called after every step (e.g. to grab a video frame).
         progress: callable(steps done, max_episode_steps), e.g. a ``Progress``.
+        target: velocity the error is measured against; None: the task's target.
     """
     core = env.core
     env.set_seed(seed)
     core.reset()
-    n, vstar = core.num_envs, core.config.expected_velocity
+    n = core.num_envs
+    vstar = core.task.v_target if target is None else target
     limit = core.config.max_episode_steps
     report = progress or (lambda done, total: None)
     report(0, limit)
@@ -153,7 +165,7 @@ def evaluate(
     fell = torch.zeros(n, dtype=torch.bool)
     steps = torch.zeros(n)
     totals = {key: torch.zeros(n, dtype=torch.float64) for key in ("return", "v", "err", "contact")}
-    zeros = torch.zeros(n, 12)
+    zeros = torch.zeros(n, core.task.action_dim)
     with torch.inference_mode():
         for step in range(limit):
             result = core.step(zeros if policy is None else policy())
@@ -253,7 +265,19 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         type=Path,
         help="rsl-rl checkpoint model_<it>.pt (default: none)",
     )
-    add("--base-gait", action="store_true", help="evaluate zero residuals (default: off)")
+    add("--base-gait", action="store_true", help="evaluate zero actions (default: off)")
+    add(
+        "--task",
+        default="residual_walk",
+        help="task of a --base-gait run without --checkpoint (default: %(default)s)",
+    )
+    add(
+        "--command",
+        metavar="M/S",
+        type=POSITIVE_FLOAT,
+        help="target velocity: asked of a commanded adaptive policy, and what every "
+        "row's velocity error is measured against (default: the gait's)",
+    )
     add(
         "--episodes",
         metavar="N",
@@ -317,14 +341,32 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             check_checkpoint(args.checkpoint)
         except (FileNotFoundError, ValueError) as error:
             parser.error(f"--checkpoint: {error}")
+        args.task = saved_args(args.checkpoint).get("task", "residual_walk")
+    try:
+        presets.get_task(args.task)
+    except ValueError as error:
+        parser.error(f"--task: {error}")
     return args
+
+
+def commanded(args: argparse.Namespace) -> tuple[float, float] | None:
+    """The eval env's command range: an adaptive policy trained with commands reads one."""
+    if args.task != "adaptive_gait":
+        return None
+    trained = args.checkpoint and saved_args(args.checkpoint).get("command_range")
+    if args.command is None and not trained:
+        return None
+    speed = args.command if args.command is not None else EnvConfig().expected_velocity
+    return (speed, speed)
 
 
 def play(argv: list[str] | None = None) -> list[Evaluation]:
     """Run the command line ``argv``; returns its table's rows."""
     args = parse_args(argv)
-    config = eval_config(args.terrain_scale, args.max_steps, args.settle_steps)
-    env = ResidualWalkVecEnv(args.episodes, config, seed=args.seed)
+    config = presets.evaluation_config(
+        args.task, args.terrain_scale, args.max_steps, args.settle_steps, commanded(args)
+    )
+    env = ResidualWalkVecEnv(args.episodes, config, seed=args.seed, task=args.task)
     env.core.settle_progress = Progress("settling starts", "physics steps", enabled=args.progress)
     recorder = None
     if args.video:
@@ -339,7 +381,7 @@ def play(argv: list[str] | None = None) -> list[Evaluation]:
 
     def run(name: str, policy=None, record=None) -> None:
         progress = Progress(f"evaluating {name}", enabled=args.progress)
-        rows.append(evaluate(name, env, args.seed, policy, record, progress))
+        rows.append(evaluate(name, env, args.seed, policy, record, progress, args.command))
 
     if args.base_gait:
         run("base gait", record=recorder if not args.checkpoint else None)

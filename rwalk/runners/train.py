@@ -1,6 +1,7 @@
-"""Train a residual policy with rsl-rl's PPO on the batched env.
+"""Train a policy for a task with rsl-rl's PPO on the batched env.
 
     rwalk-train                                  # short defaults for a 2-core CPU
+    rwalk-train --task adaptive_gait --command-range 0.05 0.25
     rwalk-train --max-minutes 30 --max-iterations 100000
     rwalk-train --resume logs/rwalk --max-iterations 200     # newest checkpoint there
     rwalk-train --resume logs/rwalk/model_49.pt --max-iterations 200
@@ -32,7 +33,7 @@ from typing import Any
 
 import torch
 
-from rwalk import EnvConfig, ResidualWalkVecEnv
+from rwalk import EnvConfig, ResidualWalkVecEnv, presets
 from rwalk.export import export_policy
 from rwalk.progress import Progress
 from rwalk.runners.checkpoints import (
@@ -68,6 +69,9 @@ class Args:
         ValueError: naming the flag, for a value out of its range.
     """
 
+    task: str = field(
+        default="residual_walk", metadata={"help": "task: residual_walk or adaptive_gait"}
+    )
     num_envs: int = field(default=1024, metadata={"help": "parallel envs"})
     max_iterations: int = field(
         default=300, metadata={"help": "PPO iterations in total, counting those of --resume"}
@@ -117,8 +121,19 @@ class Args:
     num_mini_batches: int = field(default=4, metadata={"help": "minibatches per epoch"})
     gamma: float = field(default=0.99, metadata={"help": "discount"})
     policy_obs: tuple[str, ...] = field(
-        default=("observation", "phase", "lateral_offset"),
-        metadata={"help": "observation pieces the policy sees"},
+        default=(),
+        metadata={
+            "help": "observation pieces the policy sees (none: the observation, phase, "
+            "lateral_offset and the task's command)"
+        },
+    )
+    command_range: tuple[float, ...] = field(
+        default=(),
+        metadata={
+            "help": "adaptive_gait: draw each episode's target velocity from LOW HIGH m/s "
+            "(none: the starting gait's)",
+            "item": float,
+        },
     )
     threads: int = field(default=0, metadata={"help": "physics threads (0 = all cores)"})
     export: bool = field(default=True, metadata={"help": "export TorchScript and ONNX at the end"})
@@ -143,6 +158,15 @@ class Args:
         require_in(self, "gamma", 0.0, 1.0, low_open=True)
         require_in(self, "terrain_scale", 0.0, 1.0)
         require_in(self, "settle_pool_fraction", 0.0, 1.0, low_open=True)
+        from rwalk.tasks import get_task
+
+        get_task(self.task)  # ValueError listing the known tasks
+        if self.command_range and (
+            len(self.command_range) != 2 or self.command_range[0] > self.command_range[1]
+        ):
+            raise ValueError(f"--command-range must be LOW HIGH, got {self.command_range}")
+        if self.command_range and self.task != "adaptive_gait":
+            raise ValueError(f"--command-range needs --task adaptive_gait, got {self.task!r}")
         if not self.hidden_dims or min(self.hidden_dims) < 1:
             raise ValueError(f"--hidden-dims must be sizes >= 1, got {self.hidden_dims}")
 
@@ -154,16 +178,16 @@ def parse_args(argv: list[str] | None = None) -> Args:
 def env_config(args: Args) -> EnvConfig:
     """The training env: rough world, starts spread over the terrain, pooled settling."""
     start_scale = 0.0 if args.curriculum_iterations > 0 else args.terrain_scale
-    return EnvConfig(
-        model_path="model/world_train.xml",
+    return presets.training_config(
+        args.task,
+        num_envs=args.num_envs,
         terrain_scale=start_scale,
-        randomize=True,
-        position_noise=(0.5, 1.2),
         settle_steps=args.settle_steps,
-        settle_pool=max(1, round(args.settle_pool_fraction * args.num_envs)),
+        settle_pool_fraction=args.settle_pool_fraction,
         settle_reuse=args.settle_reuse,
         max_episode_steps=args.max_episode_steps,
-        num_threads=args.threads,
+        threads=args.threads,
+        command_range=tuple(args.command_range) or None,
     )
 
 
@@ -202,14 +226,9 @@ def rsl_rl_config(args: Args) -> dict[str, Any]:
 
 
 def make_env(args: Args) -> RslRlVecEnv:
-    vec = ResidualWalkVecEnv(args.num_envs, env_config(args), seed=args.seed)
+    vec = ResidualWalkVecEnv(args.num_envs, env_config(args), seed=args.seed, task=args.task)
     vec.core.settle_progress = Progress("settling starts", "physics steps")
-    return RslRlVecEnv(
-        vec,
-        policy_obs=args.policy_obs,
-        critic_obs=("observation", "phase", "lateral_offset"),
-        reward_scale=args.reward_scale,
-    )
+    return RslRlVecEnv(vec, policy_obs=args.policy_obs or None, reward_scale=args.reward_scale)
 
 
 def start_as_base_gait(runner) -> None:

@@ -190,10 +190,13 @@ class AdaptiveGait(Task):
     def pieces(self) -> dict[str, ObsPiece]:
         pieces = super().pieces()
         pieces["gait"] = ObsPiece(
-            len(ADAPTED), lambda task: (task.params - task.centre) / task.half_width,
-            "step_height, step_length, cycle_time, body_height, each (v - centre) / half_width")
+            len(ADAPTED),
+            lambda task: (task.params - task.centre) / task.half_width,
+            "step_height, step_length, cycle_time, body_height, each (v - centre) / half_width",
+        )
         pieces["command"] = ObsPiece(
-            1, lambda task: task.target.unsqueeze(-1), "the episode's target velocity (m/s)")
+            1, lambda task: task.target.unsqueeze(-1), "the episode's target velocity (m/s)"
+        )
         return pieces  # fmt: skip
 
     def extras(self) -> tuple[str, ...]:

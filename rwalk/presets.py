@@ -1,0 +1,98 @@
+"""The configurations runners share: training and evaluation episodes of each task.
+
+One place for the start spread, pooled settling and world, so that the trainer,
+the evaluator, the benchmark and the TorchRL trainer run the same episodes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from rwalk.config import EnvConfig
+from rwalk.gait import GaitParameters
+from rwalk.physics import Physics
+from rwalk.rewards import RewardWeights
+from rwalk.tasks import get_task
+
+__all__ = ["START_SPREAD", "config_from_dict", "evaluation_config", "get_task", "training_config"]
+from rwalk.tasks.adaptive_gait import GaitBounds
+
+#: Half-widths (x, y) of the start spread over the training terrain. Metres.
+START_SPREAD = (0.5, 1.2)
+
+
+def _task_fields(task: str, command_range: tuple[float, float] | None) -> dict[str, Any]:
+    if command_range is not None:
+        if get_task(task).name != "adaptive_gait":
+            raise ValueError(f"command_range needs the adaptive_gait task, got task {task!r}")
+        return {"command_range": tuple(command_range)}
+    return {}
+
+
+def training_config(
+    task: str = "residual_walk",
+    *,
+    num_envs: int,
+    terrain_scale: float = 1.0,
+    settle_steps: int = 100,
+    settle_pool_fraction: float = 0.25,
+    settle_reuse: int = 4,
+    max_episode_steps: int = 1000,
+    threads: int = 0,
+    command_range: tuple[float, float] | None = None,
+) -> EnvConfig:
+    """The training env: rough world, starts spread over the terrain, pooled settling."""
+    return get_task(task).config_type(
+        model_path="model/world_train.xml",
+        terrain_scale=terrain_scale,
+        randomize=True,
+        position_noise=START_SPREAD,
+        settle_steps=settle_steps,
+        settle_pool=max(1, round(settle_pool_fraction * num_envs)),
+        settle_reuse=settle_reuse,
+        max_episode_steps=max_episode_steps,
+        num_threads=threads,
+        **_task_fields(task, command_range),
+    )
+
+
+def evaluation_config(
+    task: str = "residual_walk",
+    terrain_scale: float = 1.0,
+    max_steps: int = 1000,
+    settle_steps: int = 500,
+    command_range: tuple[float, float] | None = None,
+) -> EnvConfig:
+    """The spec's episodes on the rough world, starts spread over the terrain."""
+    return get_task(task).config_type(
+        randomize=True,
+        position_noise=START_SPREAD,
+        terrain_scale=terrain_scale,
+        max_episode_steps=max_steps,
+        settle_steps=settle_steps,
+        **_task_fields(task, command_range),
+    )
+
+
+def config_from_dict(task: str, values: dict[str, Any]) -> EnvConfig:
+    """Rebuild a task's config from ``dataclasses.asdict`` output (e.g. a run's config.json).
+
+    Raises:
+        ValueError: an unknown task, or a value the config refuses (naming it).
+    """
+    kind = get_task(task).config_type
+    nested = {"gait": GaitParameters, "physics": Physics, "reward_weights": RewardWeights}
+    out = {}
+    names = {f.name for f in dataclasses.fields(kind)}
+    for key, value in values.items():
+        if key not in names:
+            raise ValueError(f"{kind.__name__} has no field {key!r}")
+        if key in nested:
+            value = nested[key](**value)
+        elif key == "bounds":
+            value = GaitBounds(**{k: tuple(v) for k, v in value.items()})
+        elif isinstance(value, list):
+            value = tuple(value)
+        out[key] = value
+    return kind(**out)
