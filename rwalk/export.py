@@ -179,15 +179,15 @@ def export_policy(
     env = getattr(runner_or_policy, "env", None)
     task = env.core.task if hasattr(env, "core") else None
     actions = task.action_dim if task is not None else ACTION_DIM
+    layout_text = (
+        task.action_layout if task is not None else "foot offsets FL, FR, RL, RR (x, y, z)"
+    )
     description = {
         "input": {"name": "obs", "shape": ["batch", size], "dtype": "float32", "pieces": layout},
         "output": {
             "name": "actions",
             "shape": ["batch", actions],
-            "content": (
-                f"{task.action_layout if task is not None else 'foot offsets FL, FR, RL, RR (x, y, z)'}"
-                " in [-1, 1] units (the env clips)"
-            ),
+            "content": f"{layout_text} in [-1, 1] units (the env clips)",
         },
         "observation_normalizer": "included: feed raw observations",
         "files": {"torchscript": "policy.pt", "onnx": "policy.onnx"},

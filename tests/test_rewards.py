@@ -8,10 +8,10 @@ from rwalk.rewards import (
     StepState,
     contact_pattern,
     evaluate,
-    spec_terms,
     fallen,
     lateral,
     quat_to_rpy,
+    spec_terms,
     stability,
     velocity_tracking,
 )

@@ -58,10 +58,10 @@ class Bound(NamedTuple):
 class GaitBounds:
     """Ranges and delta scales of the adapted parameters (metres, seconds)."""
 
-    step_height: Bound = Bound(0.01, 0.04, 0.0015)
-    step_length: Bound = Bound(0.0, 0.16, 0.008)
-    cycle_time: Bound = Bound(0.3, 0.9, 0.03)
-    body_height: Bound = Bound(0.05, 0.09, 0.002)
+    step_height: Bound = Bound(0.01, 0.04, 0.0015)  # noqa: RUF009 (immutable)
+    step_length: Bound = Bound(0.0, 0.16, 0.008)  # noqa: RUF009 (immutable)
+    cycle_time: Bound = Bound(0.3, 0.9, 0.03)  # noqa: RUF009 (immutable)
+    body_height: Bound = Bound(0.05, 0.09, 0.002)  # noqa: RUF009 (immutable)
 
     def __post_init__(self) -> None:
         for name in ADAPTED:
