@@ -177,7 +177,9 @@ class AdaptiveGait(Task):
         self.low, self.high, self.delta = cfg.bounds.as_tensors()
         self.centre = 0.5 * (self.low + self.high)
         self.half_width = 0.5 * (self.high - self.low)
-        self.start = torch.tensor([getattr(cfg.gait, name) for name in ADAPTED])
+        self.start = torch.tensor(
+            [getattr(cfg.gait, name) for name in ADAPTED], dtype=torch.float64
+        )
         n = core.num_envs
         self.params = self.start.repeat(n, 1)
         """Current step_height, step_length, cycle_time, body_height. Shape: (N, 4)."""
@@ -185,7 +187,8 @@ class AdaptiveGait(Task):
         """Continuous gait phase in [0, 1) at the start of the next step. Shape: (N,)."""
         self.target = torch.full((n,), cfg.expected_velocity, dtype=torch.float64)
         """Target velocity of each env's episode. Shape: (N,). m/s."""
-        self._draws = np.zeros(n, dtype=np.uint64)
+        self.draws = torch.zeros(n, dtype=torch.long)
+        """Commands drawn so far by each env (the counter of its next draw). Shape: (N,)."""
 
     def pieces(self) -> dict[str, ObsPiece]:
         pieces = super().pieces()
@@ -204,7 +207,7 @@ class AdaptiveGait(Task):
         return (*super().extras(), *(("command",) if commanded else ()))
 
     def seed(self) -> None:
-        self._draws[:] = 0
+        self.draws.zero_()
 
     def reset(self, rows: Tensor) -> None:
         core = self.core
@@ -213,8 +216,9 @@ class AdaptiveGait(Task):
         command = core.config.command_range
         if command is not None:
             ids = rows.numpy().astype(np.uint64)
-            keys = rng.keys(np.uint64(core.seed_value) + ids, COMMAND_STREAM, self._draws[ids])
-            self._draws[ids] += np.uint64(1)
+            counters = self.draws[rows].numpy().astype(np.uint64)
+            keys = rng.keys(np.uint64(core.seed_value) + ids, COMMAND_STREAM, counters)
+            self.draws[rows] += 1
             u = torch.from_numpy(rng.uniform(keys, 1)[:, 0])
             self.target[rows] = command[0] + u * (command[1] - command[0])
 
@@ -249,4 +253,4 @@ class AdaptiveGait(Task):
 
     def state(self) -> dict[str, Tensor]:
         return {"params": self.params, "gait_phase": self.gait_phase, "target": self.target,
-                "draws": torch.from_numpy(self._draws)}  # fmt: skip
+                "draws": self.draws}  # fmt: skip

@@ -66,6 +66,9 @@ class Task:
     """What the action's values are, for error messages and docs."""
     observation: ClassVar[tuple[str, ...]] = ("sensors",)
     """Pieces that make the spec observation, in order."""
+    single_step: ClassVar[bool] = False
+    """Whether a one-env core may step through ``rwalk.single``'s float pipeline
+    (which implements this task's step on numpy and floats)."""
 
     def __init__(self, core: Core) -> None:
         self.core = core
