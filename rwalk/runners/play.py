@@ -55,6 +55,8 @@ class Evaluation:
     """Mean over episodes of the mean torso v_x. m/s."""
     velocity_error: float
     """Mean over episodes of the mean |v_x - v*| per step (what the reward penalises). m/s."""
+    velocity_error_se: float
+    """Standard error of ``velocity_error`` over the episodes. m/s."""
     contact_score: float
     """Mean over episodes of the per-step contact_pattern term (max 0.2)."""
     mean_length: float
@@ -192,6 +194,7 @@ def evaluate(
         fall_rate=float(fell.double().mean()),
         forward_velocity=float(per_step["v"].mean()),
         velocity_error=float(per_step["err"].mean()),
+        velocity_error_se=float(per_step["err"].std() / max(n, 1) ** 0.5) if n > 1 else 0.0,
         contact_score=float(per_step["contact"].mean()),
         mean_length=float(steps.mean()),
     )
