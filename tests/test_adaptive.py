@@ -153,7 +153,7 @@ def test_velocity_commands_are_drawn_per_episode_and_exposed():
     assert torch.equal(again, td["command"])  # a pure function of the seed
     adapter = RslRlVecEnv(env)
     assert adapter.get_observations()["policy"].shape == (4, 69 + 2 + 1 + 1)
-    assert "command" not in AdaptiveGaitVecEnv(2, FAST, seed=0).reset().keys()
+    assert "command" not in AdaptiveGaitVecEnv(2, FAST, seed=0).reset()
 
 
 def test_velocity_term_tracks_the_episodes_target():
@@ -207,7 +207,7 @@ def test_a_body_height_the_legs_cannot_reach_is_refused():
 
 
 def test_a_starting_gait_outside_the_ranges_is_refused():
-    with pytest.raises(ValueError, match="GaitBounds.cycle_time"):
+    with pytest.raises(ValueError, match=r"GaitBounds\.cycle_time"):
         AdaptiveGaitEnv(gait_params=GaitParameters(cycle_time=1.0), settle_steps=5)
 
 
@@ -232,7 +232,7 @@ def test_unknown_tasks_list_the_known_ones():
         get_task("walk")
     with pytest.raises(ValueError, match="unknown task"):
         ResidualWalkVecEnv(2, task="walk")
-    with pytest.raises(ValueError, match="takes a AdaptiveGaitConfig, got a EnvConfig"):
+    with pytest.raises(ValueError, match=r"takes a AdaptiveGaitConfig, got a EnvConfig"):
         Core(EnvConfig(), 1, task="adaptive_gait")
 
 
@@ -256,13 +256,13 @@ def test_a_new_term_is_one_function_and_one_line(monkeypatch):
     env = ResidualWalkVecEnv(2, config, seed=0, task="upright_walk")
     td = env.rand_step(env.reset())
     terms = td["next", "reward_terms"]
-    assert "upright" in terms.keys()
+    assert "upright" in terms
     rpy = env.core.obs[:, 3:7]  # the term is -2 roll², and the reward sums every term
     from rwalk.rewards import quat_to_rpy
 
     roll = quat_to_rpy(rpy)[:, 0]
     torch.testing.assert_close(terms["upright"].squeeze(-1), (-2.0 * roll * roll).float())
-    total = sum(terms[name] for name in terms.keys())
+    total = sum(terms[name] for name in terms.keys())  # noqa: SIM118 (TensorDict)
     torch.testing.assert_close(total, td["next", "reward"])
     assert "upright" in env.core.episode_sums
     assert "sum/upright" in env.core.episode_log(torch.tensor([0]))

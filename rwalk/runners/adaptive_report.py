@@ -110,11 +110,13 @@ def table(rows: list[Evaluation]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--residual", type=Path, required=True, help="residual checkpoint")
     parser.add_argument("--adaptive", type=Path, required=True, help="adaptive checkpoint")
-    parser.add_argument("--episodes", type=POSITIVE_INT, default=100, help="paired episodes")
+    add = parser.add_argument
+    add("--episodes", type=POSITIVE_INT, default=100, help="paired episodes")
     parser.add_argument("--seed", type=NATURAL_INT, default=1000, help="first episode's seed")
     parser.add_argument("--train-scale", type=UNIT_FLOAT, default=0.6, help="training terrain")
     parser.add_argument("--rough-scale", type=UNIT_FLOAT, default=1.0, help="rougher terrain")
