@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import warnings
 from dataclasses import dataclass
@@ -10,7 +9,6 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from rwalk.config import EnvConfig
 from rwalk.constants import OBS_CONTACT, OBS_FOOT_POS, OBS_LINVEL, OBS_POS, OBS_QUAT
 from rwalk.core import ResidualWalkCore
 from rwalk.rewards import quat_to_rpy
@@ -142,18 +140,3 @@ def walk(
         torque=(sums["tau"] / counted).numpy(),
         seconds=seconds,
     )
-
-
-def base_gait_config(world: str, **overrides) -> EnvConfig:
-    """The base-gait check's setup: starts from standing (no settling), yaw
-    perturbed by ±0.1 rad; on the rough world, starts spread over the terrain."""
-    spread = (0.0, 0.0) if "flat" in world else (0.5, 1.5)
-    config = EnvConfig(
-        model_path=world,
-        settle_steps=0,
-        randomize=True,
-        position_noise=spread,
-        yaw_noise=0.1,
-        tilt_noise=0.0,
-    )
-    return dataclasses.replace(config, **overrides)

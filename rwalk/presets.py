@@ -15,11 +15,17 @@ from rwalk.physics import Physics
 from rwalk.rewards import RewardWeights
 from rwalk.tasks import get_task
 
-__all__ = ["START_SPREAD", "config_from_dict", "evaluation_config", "get_task", "training_config"]
+__all__ = [
+    "BASE_GAIT_SPREAD", "START_SPREAD", "base_gait_config", "config_from_dict",
+    "evaluation_config", "get_task", "training_config",
+]  # fmt: skip
 from rwalk.tasks.adaptive_gait import GaitBounds
 
 #: Half-widths (x, y) of the start spread over the training terrain. Metres.
 START_SPREAD = (0.5, 1.2)
+#: The base-gait measurements' spread (wider in y: unsettled starts, no policy to
+#: keep off the terrain's edge within 1000 steps). The documented figures use it.
+BASE_GAIT_SPREAD = (0.5, 1.5)
 
 
 def _task_fields(task: str, command_range: tuple[float, float] | None) -> dict[str, Any]:
@@ -73,6 +79,22 @@ def evaluation_config(
         settle_steps=settle_steps,
         **_task_fields(task, command_range),
     )
+
+
+def base_gait_config(world: str, **overrides) -> EnvConfig:
+    """The base-gait check's setup (docs/base_gait.md, docs/physics.md): starts from
+    standing (no settling), yaw perturbed by ±0.1 rad; on the rough world, starts
+    spread over the terrain by BASE_GAIT_SPREAD."""
+    spread = (0.0, 0.0) if "flat" in world else BASE_GAIT_SPREAD
+    config = EnvConfig(
+        model_path=world,
+        settle_steps=0,
+        randomize=True,
+        position_noise=spread,
+        yaw_noise=0.1,
+        tilt_noise=0.0,
+    )
+    return dataclasses.replace(config, **overrides)
 
 
 def config_from_dict(task: str, values: dict[str, Any]) -> EnvConfig:

@@ -2,8 +2,9 @@
 
 import numpy as np
 
-from rwalk.analysis import base_gait_config, walk
+from rwalk.analysis import walk
 from rwalk.core import ResidualWalkCore
+from rwalk.presets import base_gait_config
 
 
 def test_base_gait_walks_straight_on_flat_ground():

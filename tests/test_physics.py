@@ -9,12 +9,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from rwalk.analysis import base_gait_config, walk
+from rwalk.analysis import walk
 from rwalk.assets import load_model
 from rwalk.config import EnvConfig
 from rwalk.constants import MODEL_DIR
 from rwalk.core import ResidualWalkCore
 from rwalk.physics import Physics, describe
+from rwalk.presets import base_gait_config
 from rwalk.runners import fidelity
 
 QUICK = EnvConfig(model_path="model/world_flat.xml", settle_steps=0, max_episode_steps=5)

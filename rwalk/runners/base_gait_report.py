@@ -16,9 +16,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rwalk.analysis import base_gait_config, walk
+from rwalk.analysis import walk
 from rwalk.constants import OBS_FOOT_POS, OBS_POS
 from rwalk.core import ResidualWalkCore
+from rwalk.presets import base_gait_config
 
 WORLDS = {"flat": "model/world_flat.xml", "rough": "model/world_train.xml"}
 

@@ -68,9 +68,9 @@ ENVPOOL_N = 256
 
 def _config(threads: int, n: int):
     """The training defaults for n envs on the given number of threads."""
-    from rwalk.runners.train import Args, env_config
+    from rwalk.presets import training_config
 
-    return env_config(dataclasses.replace(Args(), threads=threads, num_envs=n))
+    return training_config(num_envs=n, threads=threads)
 
 
 def _peak_rss_mb() -> float:

@@ -34,9 +34,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rwalk.analysis import WalkReport, base_gait_config, walk
+from rwalk.analysis import WalkReport, walk
 from rwalk.core import ResidualWalkCore
 from rwalk.physics import Physics
+from rwalk.presets import base_gait_config
 from rwalk.runners.cli import POSITIVE_FLOAT, POSITIVE_INT, command
 
 PROG = command("rwalk.runners.fidelity")

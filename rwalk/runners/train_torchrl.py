@@ -34,7 +34,7 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from rwalk import ResidualWalkVecEnv
+from rwalk import ResidualWalkVecEnv, presets
 from rwalk.runners.checkpoints import (
     RunSetupError,
     atomic_write_text,
@@ -48,8 +48,6 @@ from rwalk.runners.cli import (
     require_in,
     require_positive,
 )
-from rwalk.runners.train import Args as RslArgs
-from rwalk.runners.train import env_config
 
 
 @dataclass(frozen=True)
@@ -112,10 +110,8 @@ OBS_KEYS = ("observation", "phase", "lateral_offset")
 
 
 def make_env(args: Args) -> TransformedEnv:
-    config = env_config(
-        dataclasses.replace(
-            RslArgs(), num_envs=args.num_envs, threads=args.threads, settle_steps=args.settle_steps
-        )
+    config = presets.training_config(
+        num_envs=args.num_envs, threads=args.threads, settle_steps=args.settle_steps
     )
     env = TransformedEnv(
         ResidualWalkVecEnv(args.num_envs, config, seed=args.seed),

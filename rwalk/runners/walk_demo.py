@@ -8,8 +8,9 @@ from __future__ import annotations
 import argparse
 import time
 
-from rwalk.analysis import base_gait_config, walk
+from rwalk.analysis import walk
 from rwalk.core import ResidualWalkCore
+from rwalk.presets import base_gait_config
 
 
 def main(argv: list[str] | None = None) -> dict[str, float]:
