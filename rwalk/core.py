@@ -569,6 +569,12 @@ class Core:
         return pieces[name].size
 
     @property
+    def rollout_seconds(self) -> float:
+        """Wall time spent in MuJoCo rollouts so far, stepping and settling. Seconds."""
+        pool = self._pool.sim.rollout_seconds if self._pool is not None else 0.0
+        return self.sim.rollout_seconds + pool
+
+    @property
     def settle_share(self) -> float:
         """Fraction of all physics substeps so far spent settling starts."""
         total = self.physics_steps["step"] + self.physics_steps["settle"]

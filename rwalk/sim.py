@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import time
 
 import mujoco
 import numpy as np
@@ -62,6 +63,8 @@ class BatchedSim:
         """Live integration-state rows (warmstart included). Shape: (num_sims, nstate)."""
         # warning rows are mjWarningStat (lastinfo, number) per warning type
         self._warnings = self.batch.warning[..., 1]
+        self.rollout_seconds = 0.0
+        """Wall time spent in rollouts so far (a counter for benchmarks). Seconds."""
 
     @property
     def num_threads(self) -> int:
@@ -97,7 +100,11 @@ class BatchedSim:
             defaults). Shape: (M,) bool.
         """
         nstep = ctrl.shape[1]
-        return self._guard(lambda: self.batch.rollout(nstep, ctrl, record=(), ids=ids), ids)
+        start = time.perf_counter()
+        try:
+            return self._guard(lambda: self.batch.rollout(nstep, ctrl, record=(), ids=ids), ids)
+        finally:
+            self.rollout_seconds += time.perf_counter() - start
 
     def rollout_all(self, ctrl: np.ndarray) -> bool:
         """``rollout(ctrl)`` for every row, for tiny batches: one flag for all rows.
@@ -108,8 +115,10 @@ class BatchedSim:
         Returns:
             Whether any row diverged or raised (MuJoCo has reset those rows).
         """
+        start = time.perf_counter()
         with contextlib.suppress(mjbatch.SimulationError):
             self.batch.rollout(ctrl.shape[1], ctrl, record=())
+        self.rollout_seconds += time.perf_counter() - start
         return bool(self._warnings.any()) or bool(self.batch.status.any())
 
     def _guard(self, call, ids: np.ndarray | None) -> np.ndarray:

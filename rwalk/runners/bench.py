@@ -16,6 +16,8 @@ Modes, all on world_train with the training defaults, the same N, threads and
 control period (``core.control_dt``: ``core.decimation`` physics substeps):
 
   b  ResidualWalkVecEnv.step_and_maybe_reset with random actions, resets included
+  g  the same for AdaptiveGaitVecEnv (16-D actions: gait deltas and residuals),
+     against a floor of its own
   a  in the same process as b, timed in alternating rounds with it: raw
      mujoco.rollout (persistent pool, preallocated outputs, skip_checks) on b's
      robots, from b's states, with the same random-residual workload and the servo
@@ -66,11 +68,11 @@ GYM_SYNC_SIZES = (1, 16)
 ENVPOOL_N = 256
 
 
-def _config(threads: int, n: int):
-    """The training defaults for n envs on the given number of threads."""
+def _config(threads: int, n: int, task: str = "residual_walk"):
+    """The training defaults of ``task`` for n envs on the given number of threads."""
     from rwalk.presets import training_config
 
-    return training_config(num_envs=n, threads=threads)
+    return training_config(task, num_envs=n, threads=threads)
 
 
 def _peak_rss_mb() -> float:
@@ -119,7 +121,8 @@ class Floor:
         self.models = [self.model] * self.n
         self.out_state = np.empty((self.n, self.k, self.state.shape[1]))
         self.out_sensors = np.empty((self.n, self.k, self.model.nsensordata))
-        self.tick = core.tick.clone()
+        # The gait's tick nearest each env's phase (any task: the floor runs the base gait).
+        self.tick = torch.round(core.phase * core.controller.period).long()
 
     def step(self) -> float:
         core, n, k = self.core, self.n, self.k
@@ -170,24 +173,6 @@ def _spread_episodes(core, generator: torch.Generator) -> None:
     core.episode_step.copy_(torch.randint(0, high, core.episode_step.shape, generator=generator))
 
 
-def _time_rollouts(core) -> list[float]:
-    """Wrap the core's (and its pool's) MuJoCo rollouts; returns the running total."""
-    total = [0.0]
-    sims = [core.sim] + ([core._pool.sim] if core._pool is not None else [])
-    for sim in sims:
-        original = sim.rollout
-
-        def timed(*args, _original=original, **kwargs):
-            start = time.perf_counter()
-            try:
-                return _original(*args, **kwargs)
-            finally:
-                total[0] += time.perf_counter() - start
-
-        sim.rollout = timed
-    return total
-
-
 class EnvMeter:
     """What the core did while its steps were timed: throughput, settling, time in MuJoCo.
 
@@ -197,8 +182,8 @@ class EnvMeter:
 
     def __init__(self, core) -> None:
         self.core = core
-        self.in_mujoco = _time_rollouts(core)
         self.before, self.resets = dict(core.physics_steps), core.resets
+        self.in_mujoco = core.rollout_seconds
 
     def result(self, calls: int, seconds: float) -> dict:
         core, cfg = self.core, self.core.config
@@ -215,7 +200,7 @@ class EnvMeter:
             "settle_share": physics["settle"] / total,
             "settle_share_amortized": amortized / (physics["step"] + amortized),
             "resets_per_step": resets / calls,
-            "time_in_mujoco": self.in_mujoco[0] / seconds,
+            "time_in_mujoco": (core.rollout_seconds - self.in_mujoco) / seconds,
         } | physics_timing(core)
 
 
@@ -241,17 +226,24 @@ def _floor_result(floor: Floor, calls: int, seconds: float) -> dict:
     } | floor.timing
 
 
-def _env_stepper(n: int, threads: int, gen: torch.Generator, model_path: str | None = None):
-    """A ResidualWalkVecEnv with the training defaults (on another world if model_path
-    is given), episodes spread, and its step()."""
+def _env_stepper(
+    n: int,
+    threads: int,
+    gen: torch.Generator,
+    model_path: str | None = None,
+    task: str = "residual_walk",
+):
+    """A batched env of ``task`` with the training defaults (on another world if
+    model_path is given), episodes spread, and its step()."""
     from rwalk import ResidualWalkVecEnv
 
-    config = _config(threads, n)
+    config = _config(threads, n, task)
     if model_path is not None:
         config = dataclasses.replace(config, model_path=model_path)
     started = time.perf_counter()
-    env = ResidualWalkVecEnv(n, config, seed=0)
+    env = ResidualWalkVecEnv(n, config, seed=0, task=task)
     td = env.reset()
+    width = env.core.task.action_dim
     first_reset = {
         "first_reset_seconds_per_env": (time.perf_counter() - started) / n,
         "first_reset_substeps_per_env": env.core.physics_steps["settle"] / n,
@@ -262,7 +254,7 @@ def _env_stepper(n: int, threads: int, gen: torch.Generator, model_path: str | N
     def step() -> None:
         nonlocal td
         torch.set_num_threads(torch_threads)
-        td.set("action", torch.rand(n, 12, generator=gen) * 2 - 1)
+        td.set("action", torch.rand(n, width, generator=gen) * 2 - 1)
         _, td = env.step_and_maybe_reset(td)
 
     step()  # the first partial resets fill the pool
@@ -285,12 +277,13 @@ def _against_floor(core, step, threads: int, gen: torch.Generator, window: float
     return row, a
 
 
-def measure_env(n: int, threads: int, window: float) -> dict:
-    """(b) and its floor (a) on the same robots, timed in alternating rounds."""
+def measure_env(n: int, threads: int, window: float, task: str = "residual_walk") -> dict:
+    """(b) (or (g), the adaptive task) and its floor (a) on the same robots, timed in
+    alternating rounds."""
     gen = torch.Generator().manual_seed(0)
-    env, step, first_reset = _env_stepper(n, threads, gen)
+    env, step, first_reset = _env_stepper(n, threads, gen, task=task)
     b, a = _against_floor(env.core, step, threads, gen, window)
-    return {"b": b | first_reset, "a": a}
+    return {"b" if task == "residual_walk" else "g": b | first_reset, "a": a}
 
 
 def measure_scaling(n: int, threads: int, window: float) -> dict:
@@ -364,17 +357,17 @@ class _SpreadEpisodes:
     def __call__(self):
         from rwalk import ResidualWalkEnv
 
-        env = ResidualWalkEnv(config=self.config, seed=self.index)
-        original_reset, offset = env.reset, [self.offset]
+        offset = self.offset
 
-        def reset(**kwargs):
-            out = original_reset(**kwargs)
-            if offset:
-                env.core.episode_step[0] = offset.pop()
-            return out
+        class LateFirstEpisode(ResidualWalkEnv):
+            def reset(self, **kwargs):
+                nonlocal offset
+                out = super().reset(**kwargs)
+                if offset:  # episode_step is public: trainers spread episodes the same way
+                    self.core.episode_step[0], offset = offset, 0
+                return out
 
-        env.reset = reset
-        return env
+        return LateFirstEpisode(config=self.config, seed=self.index)
 
 
 def measure_gym(n: int, processes: int, window: float) -> dict:
@@ -431,6 +424,7 @@ def measure_envpool(terrain: str):
 
 MEASURES = {
     "b": measure_env,
+    "g": lambda n, threads, window: measure_env(n, threads, window, task="adaptive_gait"),
     "c": measure_rsl_rl,
     "d": measure_gym,
     "t": measure_scaling,
@@ -441,6 +435,7 @@ MEASURES = {
 LABELS = {
     "a": "raw mujoco.rollout (floor)",
     "b": "ResidualWalkVecEnv",
+    "g": "AdaptiveGaitVecEnv",
     "c": "rsl-rl collection",
     "d": "gymnasium vector env",
     "t": "ResidualWalkVecEnv, thread scaling",
@@ -453,7 +448,7 @@ LABELS = {
 def worker(mode: str, n: int, threads: int, window: float) -> None:
     """Measure one configuration; print each result row as a JSON line.
 
-    Mode b also measures the floor (a) right after, on the same robots."""
+    Modes b and g also measure the floor (a), on the same robots, alternating."""
     torch.set_num_threads(max(threads, 1) if threads else os.cpu_count() or 1)
     rows = MEASURES[mode](n, threads, window)
     for key, row in rows.items():
@@ -467,7 +462,7 @@ def worker(mode: str, n: int, threads: int, window: float) -> None:
 
 #: Modes --only accepts; (a) is measured by the same worker as (b), on its robots, and
 #: (e) by one worker per terrain.
-ONLY_MODES = ("a", "b", "c", "d", "e", "t")
+ONLY_MODES = ("a", "b", "c", "d", "e", "g", "t")
 
 
 def parse_only(text: str) -> tuple[str, int, int]:
@@ -516,6 +511,7 @@ def plan(quick: bool) -> list[tuple[str, int, int]]:
     sizes = QUICK_SIZES if quick else SIZES
     thread_counts = sorted({1, cores})
     runs = [(mode, n, t) for n in sizes for t in thread_counts for mode in "bc"]
+    runs += [("g", QUICK_SIZES[-1], t) for t in thread_counts]  # the adaptive task at N=1024
     runs += [("d", n, 1) for n in (GYM_SYNC_SIZES[-1:] if quick else GYM_SYNC_SIZES)]
     if cores > 1:
         runs.append(("d", cores, cores))  # AsyncVectorEnv: one worker process per core
