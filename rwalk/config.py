@@ -65,6 +65,10 @@ class EnvConfig:
     """Physics worker threads including the caller's; 0 uses all cores."""
     reward_weights: RewardWeights = field(default_factory=RewardWeights)
     """Weights of the reward terms."""
+    command_range: tuple[float, float] | None = None
+    """None: the reward tracks the gait's step_length / cycle_time (the spec). (low,
+    high): each episode draws its target velocity uniformly from it (m/s), and the
+    views expose it as the piece ``command``."""
 
     def __post_init__(self) -> None:
         def bad(name: str, why: str) -> ValueError:
@@ -122,6 +126,13 @@ class EnvConfig:
             raise ValueError("EnvConfig noise half-widths must be >= 0")
         if not isinstance(self.num_threads, int) or self.num_threads < 0:
             raise bad("num_threads", "must be an integer >= 0")
+        if self.command_range is not None and not (
+            isinstance(self.command_range, tuple)
+            and len(self.command_range) == 2
+            and all(_is_number(v) and math.isfinite(v) for v in self.command_range)
+            and self.command_range[0] <= self.command_range[1]
+        ):
+            raise bad("command_range", "must be None or (low, high) m/s with low <= high")
 
     def substeps(self, timestep: float) -> int:
         """Physics substeps per env step at a physics ``timestep`` (seconds).

@@ -166,6 +166,8 @@ class Core:
         """Per-term sums over the current episode. Each shape: (N,)."""
         self.episode_distance = torch.zeros(n, dtype=torch.float64)
         """Sum of forward velocity x control dt over the current episode. Shape: (N,)."""
+        self.episode_speed_error = torch.zeros(n, dtype=torch.float64)
+        """Sum of |v_x - v*| over the current episode's steps. Shape: (N,). m/s."""
         with warnings.catch_warnings():  # sensordata is a read-only output; we only read it
             warnings.simplefilter("ignore", UserWarning)
             self._sensors = torch.from_numpy(self.sim.sensordata)
@@ -181,7 +183,11 @@ class Core:
         """Called with (physics steps done, total) of each settle: 0 first, then per chunk."""
         self._started = False
         self.seed(seed)
-        self._single = SingleStep(self) if n == 1 and task_type.single_step else None
+        self._single = (
+            SingleStep(self)
+            if n == 1 and task_type.single_step and config.command_range is None
+            else None
+        )
 
     #: Attributes rebuilt from the config when a core is unpickled or deep-copied.
     _REBUILT = (
@@ -293,10 +299,12 @@ class Core:
             self._settle_fresh(self.sim, ids, randomize)
             self.obs[rows] = _observation(self._sensors[rows])
         self.task.reset(rows)
+        self.task.draw_commands(rows)
         self.episode_step[rows] = 0
         self.walked_steps[rows] = 0
         self.y0[rows] = self.obs[rows, OBS_POS.start + 1]
-        for total in (*self.episode_sums.values(), self.episode_distance):
+        totals = (*self.episode_sums.values(), self.episode_distance, self.episode_speed_error)
+        for total in totals:
             total[rows] = 0.0
         self.resets += ids.size
         if ids.size == self.num_envs:
@@ -459,10 +467,18 @@ class Core:
         truncated = (self.episode_step >= cfg.max_episode_steps) & ~terminated
         for name, term in terms.items():
             self.episode_sums[name] += term
-        self.episode_distance += forward_velocity.masked_fill(diverged, 0.0) * self.control_dt
+        moved = forward_velocity.masked_fill(diverged, 0.0)
+        self.episode_distance += moved * self.control_dt
+        self.episode_speed_error += (moved - state.v_target).abs()
         return StepResult(
             self.task.spec_observation(), reward, terms, terminated, truncated, diverged
         )
+
+    @property
+    def has_single_step(self) -> bool:
+        """Whether ``step_single`` runs: one env of a task with a float pipeline
+        (``rwalk.single``: the residual task without velocity commands)."""
+        return self._single is not None
 
     def step_single(self, action: np.ndarray) -> SingleStepResult:
         """``step`` for a core of one env, on numpy and Python floats: the same bits,
@@ -585,8 +601,9 @@ class Core:
 
         Returns per-term episode sums (``"sum/<term>"``), ``"length"`` (steps
         actually walked, whatever ``episode_step`` was set to),
-        ``"forward_velocity"`` (mean over the episode, m/s) and
-        ``"target_velocity"`` (what the reward tracked, m/s). Each shape: (M,).
+        ``"forward_velocity"`` (mean over the episode, m/s),
+        ``"target_velocity"`` (what the reward tracked, m/s) and
+        ``"velocity_error"`` (mean |v_x - v*| per step, m/s). Each shape: (M,).
         """
         length = self.walked_steps[env_ids].to(torch.float64)
         log = {f"sum/{name}": total[env_ids] for name, total in self.episode_sums.items()}
@@ -598,6 +615,7 @@ class Core:
         log["target_velocity"] = (
             target[env_ids] if isinstance(target, Tensor) else torch.full_like(length, target)
         )
+        log["velocity_error"] = self.episode_speed_error[env_ids] / length.clamp(min=1.0)
         return log
 
 

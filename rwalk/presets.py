@@ -28,14 +28,6 @@ START_SPREAD = (0.5, 1.2)
 BASE_GAIT_SPREAD = (0.5, 1.5)
 
 
-def _task_fields(task: str, command_range: tuple[float, float] | None) -> dict[str, Any]:
-    if command_range is not None:
-        if get_task(task).name != "adaptive_gait":
-            raise ValueError(f"command_range needs the adaptive_gait task, got task {task!r}")
-        return {"command_range": tuple(command_range)}
-    return {}
-
-
 def training_config(
     task: str = "residual_walk",
     *,
@@ -59,7 +51,7 @@ def training_config(
         settle_reuse=settle_reuse,
         max_episode_steps=max_episode_steps,
         num_threads=threads,
-        **_task_fields(task, command_range),
+        command_range=command_range,
     )
 
 
@@ -77,7 +69,7 @@ def evaluation_config(
         terrain_scale=terrain_scale,
         max_episode_steps=max_steps,
         settle_steps=settle_steps,
-        **_task_fields(task, command_range),
+        command_range=command_range,
     )
 
 

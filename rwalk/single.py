@@ -77,10 +77,10 @@ class SingleStep:
         """Numpy views of the core's state tensors (they share memory)."""
         core = self.core
         self._tensors = (core.tick, core.episode_step, core.walked_steps, core.y0, core.obs,
-                         core.episode_distance, *core.episode_sums.values())  # fmt: skip
-        self._tick, self._episode_step, self._walked, self._y0, obs, self._distance = (
-            t.numpy() for t in self._tensors[:6]
-        )
+                         core.episode_distance, core.episode_speed_error,
+                         *core.episode_sums.values())  # fmt: skip
+        (self._tick, self._episode_step, self._walked, self._y0, obs, self._distance,
+         self._speed_error) = (t.numpy() for t in self._tensors[:7])  # fmt: skip
         self._obs = obs[0]
         self._sums = {name: total.numpy() for name, total in core.episode_sums.items()}
 
@@ -143,6 +143,7 @@ class SingleStep:
         for name, term in terms.items():
             self._sums[name][0] += term
         self._distance[0] += forward_velocity * core.control_dt
+        self._speed_error[0] += abs(forward_velocity - cfg.expected_velocity)
         return SingleStepResult(
             obs, reward, terms, terminated, truncated, diverged,
             phase=float(next_tick) / period, lateral_offset=values[1] - y0,

@@ -32,3 +32,25 @@ def test_spec_example_runs(index, tmp_path, monkeypatch, capsys):
     assert "env" in namespace
     if "custom_gait" in namespace:
         assert capsys.readouterr().out.strip() == "Expected velocity: 0.125 m/s"
+
+
+def test_architecture_examples_run_as_registered_tasks(monkeypatch):
+    """docs/architecture.md's new term and new task: each one module plus one registry line."""
+    import torch
+
+    from rwalk import EnvConfig, ResidualWalkVecEnv
+    from rwalk.tasks import TASKS
+
+    heading, stand = _blocks("architecture.md")
+    namespace: dict = {}
+    exec(compile(heading, "architecture.md heading", "exec"), namespace)
+    exec(compile(stand, "architecture.md stand", "exec"), namespace)
+    monkeypatch.setitem(TASKS, "heading_walk", namespace["HeadingWalk"])
+    monkeypatch.setitem(TASKS, "stand", namespace["Stand"])
+    config = EnvConfig(model_path="model/world_flat.xml", settle_steps=5)
+    env = ResidualWalkVecEnv(2, config, seed=0, task="heading_walk")
+    td = env.rand_step(env.reset())
+    assert "heading" in td["next", "reward_terms"]
+    stand_env = ResidualWalkVecEnv(2, config, seed=0, task="stand")
+    td = stand_env.step(stand_env.reset().set("action", torch.zeros(2, 12)))
+    assert not td["next", "terminated"].any()

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from rwalk.config import EnvConfig
-from rwalk.constants import ACTION_DIM, OBS_POS
+from rwalk.constants import OBS_POS
 from rwalk.core import Core
 from rwalk.gait import GaitParameters
 from rwalk.tasks import AdaptiveGaitConfig, GaitBounds
@@ -155,11 +155,14 @@ class ResidualWalkEnv(gym.Env):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         array = np.asarray(action)
-        if array.shape != (ACTION_DIM,):
+        dim = self.core.task.action_dim
+        if array.shape != (dim,):
             raise ValueError(
-                f"action must have shape ({ACTION_DIM},) ({self.core.task.action_layout}), got "
+                f"action must have shape ({dim},) ({self.core.task.action_layout}), got "
                 f"{array.shape}"
             )
+        if not self.core.has_single_step:
+            return self._batched_step(array)
         # The core's one-env step: numpy and floats, the same bits as its batched step.
         result = self.core.step_single(array)
         obs = result.obs
@@ -178,6 +181,23 @@ class ResidualWalkEnv(gym.Env):
             info,
         )
 
+    def _batched_step(self, array: np.ndarray):
+        """``step`` through the core's batched pipeline (N = 1)."""
+        result = self.core.step(torch.as_tensor(array).reshape(1, -1))
+        info = {
+            "reward_components": {name: float(term[0]) for name, term in result.terms.items()},
+            "body_height": float(self.core.obs[0, OBS_POS.start + 2]),
+            "diverged": bool(result.diverged[0]),
+            **self._info(),
+        }
+        return (
+            result.obs[0].numpy().astype(np.float32),
+            float(result.reward[0]),
+            bool(result.terminated[0]),
+            self._truncates and bool(result.truncated[0]),
+            info,
+        )
+
     def _observation(self) -> np.ndarray:
         return self.core.task.spec_observation()[0].numpy().astype(np.float32)
 
@@ -186,6 +206,9 @@ class ResidualWalkEnv(gym.Env):
         return {
             "phase": float(core.phase[0]),
             "lateral_offset": float(core.obs[0, OBS_POS.start + 1] - core.y0[0]),
+            **(
+                {"target_velocity": float(core.task.target[0])} if core.config.command_range else {}
+            ),
         }
 
     def __getstate__(self) -> dict[str, Any]:
@@ -230,7 +253,7 @@ class AdaptiveGaitEnv(ResidualWalkEnv):
 
     ## Info
     As ``ResidualWalkEnv``, plus ``gait_params`` (the four current values, SI
-    units) and ``target_velocity`` (m/s).
+    units) and, with ``command_range``, ``target_velocity`` (m/s).
 
     ## Arguments
     Those of ``ResidualWalkEnv`` plus ``bounds`` (a ``GaitBounds``: range and
@@ -265,34 +288,10 @@ class AdaptiveGaitEnv(ResidualWalkEnv):
     def _config(self, spec_args: dict[str, Any]) -> EnvConfig:
         return AdaptiveGaitConfig(**spec_args, **self._adaptive)
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        array = np.asarray(action)
-        dim = self.core.task.action_dim
-        if array.shape != (dim,):
-            raise ValueError(
-                f"action must have shape ({dim},) ({self.core.task.action_layout}), got "
-                f"{array.shape}"
-            )
-        result = self.core.step(torch.as_tensor(array).reshape(1, dim))
-        info = {
-            "reward_components": {name: float(term[0]) for name, term in result.terms.items()},
-            "body_height": float(self.core.obs[0, OBS_POS.start + 2]),
-            "diverged": bool(result.diverged[0]),
-            **self._info(),
-        }
-        return (
-            result.obs[0].numpy().astype(np.float32),
-            float(result.reward[0]),
-            bool(result.terminated[0]),
-            self._truncates and bool(result.truncated[0]),
-            info,
-        )
-
     def _info(self) -> dict[str, Any]:
         task = self.core.task
         params = task.gait_params()[0].tolist()
         return {
             **super()._info(),
             "gait_params": dict(zip(ADAPTED, params, strict=True)),
-            "target_velocity": float(task.v_target[0]),
         }

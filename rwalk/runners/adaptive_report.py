@@ -6,11 +6,11 @@
 Every row runs the same --episodes paired episodes (episode i starts like a
 single env seeded --seed + i): (a) on the training terrain (--train-scale), (b)
 on rougher terrain (--rough-scale), (c) at each commanded speed on the training
-terrain. An adaptive policy trained with commands is asked for the speed; the
-base gait and the residual policy cannot be asked, and their velocity error is
-measured against it. Writes adaptive.json (every row) and adaptive_gait.png
-(the adaptive policy's gait parameters over one episode on smooth and rough
-ground), and prints the tables.
+terrain: the speed is each episode's target velocity, which the reward and the
+velocity error track; only the adaptive policy (trained with commands) reads it,
+the base gait and the residual policy walk as they do. Writes adaptive.json
+(every row) and adaptive_gait.png (the adaptive policy's gait parameters over
+one episode on smooth and rough ground), and prints the tables.
 """
 
 from __future__ import annotations
@@ -40,17 +40,13 @@ def make_env(task: str, episodes: int, seed: int, scale: float, command: float |
 
 def run_row(name, checkpoint, episodes, seed, scale, command=None) -> Evaluation:
     """One row: the base gait (checkpoint None) or a policy, on ``episodes`` paired episodes."""
-    task = (
-        "residual_walk"
-        if checkpoint is None
-        else saved_args(checkpoint).get("task", "residual_walk")
-    )
-    commanded = task == "adaptive_gait" and bool(saved_args(checkpoint).get("command_range"))
-    if commanded and command is None:
-        command = presets.EnvConfig().expected_velocity
-    env = make_env(task, episodes, seed, scale, command if commanded else None)
+    saved = {} if checkpoint is None else saved_args(checkpoint)
+    task = saved.get("task", "residual_walk")
+    if saved.get("command_range") and command is None:
+        command = presets.EnvConfig().expected_velocity  # it reads a command: the gait's speed
+    env = make_env(task, episodes, seed, scale, command)
     policy = None if checkpoint is None else load_policy(checkpoint, env)
-    row = evaluate(name, env, seed, policy, target=command)
+    row = evaluate(name, env, seed, policy)
     return dataclasses.replace(row, name=f"{name} | {scale:g} | {command or '-'}")
 
 

@@ -8,8 +8,9 @@
 (``python -m rwalk.runners.play`` in a checkout.) Checkpoints are rsl-rl's, from
 rwalk-train (model_<it>.pt, with the config.json it writes beside them); the
 checkpoint's task (config.json) sets the task, --task the base gait's without one.
---command V asks an adaptive policy trained with commands for V m/s (default:
-the starting gait's speed), and measures every row's velocity error against V.
+--command V makes V m/s every episode's target velocity: the reward and the
+velocity error track it, and a policy trained with commands (--command-range)
+reads it (default for such a policy: the gait's step_length / cycle_time).
 
 Every run uses the same starts (seed --seed: episode i starts like a single env
 seeded --seed + i), so the base gait and a policy meet exactly the same episodes. Episodes are the
@@ -25,6 +26,7 @@ import argparse
 import contextlib
 import io
 import json
+import math
 import sys
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -33,8 +35,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rwalk import EnvConfig, ResidualWalkVecEnv, presets
-from rwalk.constants import OBS_LINVEL
+from rwalk import EnvConfig, ResidualWalkVecEnv, episodes, presets
 from rwalk.progress import Progress
 from rwalk.runners.cli import NATURAL_INT, POSITIVE_FLOAT, POSITIVE_INT, UNIT_FLOAT
 from rwalk.wrappers import RslRlVecEnv
@@ -123,7 +124,12 @@ def load_policy(checkpoint: Path, env: ResidualWalkVecEnv):
             f"checkpoint {str(checkpoint)!r} is a {args.task!r} policy; the env runs "
             f"{env.core.task.name!r}"
         )
-    adapter = RslRlVecEnv(env, policy_obs=args.policy_obs or None, reward_scale=args.reward_scale)
+    # Trained with the default pieces: the observation and every extra piece the run had.
+    pieces = args.policy_obs or tuple(
+        name for name in ("observation", *env.core.task.extras())
+        if name != "command" or args.command_range
+    )  # fmt: skip
+    adapter = RslRlVecEnv(env, policy_obs=pieces, critic_obs=pieces, reward_scale=args.reward_scale)
     with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the whole architecture
         runner = SafeRunner(adapter, rsl_rl_config(args), log_dir=None, device="cpu")
     runner.load(str(checkpoint))
@@ -143,7 +149,6 @@ def evaluate(
     policy=None,
     record=None,
     progress: Callable[[int, int], None] | None = None,
-    target: float | None = None,
 ) -> Evaluation:
     """Run one episode in every env of ``env`` (reset first) and summarise.
 
@@ -153,50 +158,45 @@ def evaluate(
             None = base gait (zero actions).
         record: callable(step) called after every step (e.g. to grab a video frame).
         progress: callable(steps done, max_episode_steps), e.g. a ``Progress``.
-        target: velocity the error is measured against; None: the task's target.
     """
     core = env.core
     env.set_seed(seed)
     core.reset()
     n = core.num_envs
-    vstar = core.task.v_target if target is None else target
     limit = core.config.max_episode_steps
     report = progress or (lambda done, total: None)
     report(0, limit)
-    alive = torch.ones(n, dtype=torch.bool)
-    fell = torch.zeros(n, dtype=torch.bool)
-    steps = torch.zeros(n)
-    totals = {key: torch.zeros(n, dtype=torch.float64) for key in ("return", "v", "err", "contact")}
+    first: dict[str, torch.Tensor] = {}  # each env's first episode (the envs run on after it)
+    ended = torch.zeros(n, dtype=torch.bool)
     zeros = torch.zeros(n, core.task.action_dim)
     with torch.inference_mode():
         for step in range(limit):
-            result = core.step(zeros if policy is None else policy())
-            a = alive.double()
-            v = result.obs[:, OBS_LINVEL.start]
-            totals["return"] += a * result.reward
-            totals["v"] += a * v
-            totals["err"] += a * (v - vstar).abs()
-            totals["contact"] += a * result.terms["contact_pattern"]
-            steps += alive
-            fell |= alive & result.terminated
-            alive &= ~(result.terminated | result.truncated)
+            _, end = episodes.step(core, zeros if policy is None else policy(), auto_reset=False)
+            if end is not None:
+                keep = ~ended[end.ids]
+                rows = end.ids[keep]
+                for key, value in end.stats.items():
+                    first.setdefault(key, torch.zeros(n, dtype=value.dtype))[rows] = value[keep]
+                ended[end.ids] = True
             if record is not None:
                 record(step)
-            if not alive.any():
+            if bool(ended.all()):
                 break
             report(step + 1, limit)
     report(limit, limit)  # every episode has ended
-    per_step = {key: (value / steps.double()) for key, value in totals.items() if key != "return"}
+    length = first["length"]
+    errors = first["velocity_error"]
+    contact = first.get("sum/contact_pattern", torch.full((n,), math.nan)) / length
     return Evaluation(
         name=name,
         episodes=n,
-        mean_return=float(totals["return"].mean()),
-        fall_rate=float(fell.double().mean()),
-        forward_velocity=float(per_step["v"].mean()),
-        velocity_error=float(per_step["err"].mean()),
-        velocity_error_se=float(per_step["err"].std() / max(n, 1) ** 0.5) if n > 1 else 0.0,
-        contact_score=float(per_step["contact"].mean()),
-        mean_length=float(steps.mean()),
+        mean_return=float(first["return"].mean()),
+        fall_rate=float(first["terminated"].double().mean()),
+        forward_velocity=float(first["forward_velocity"].mean()),
+        velocity_error=float(errors.mean()),
+        velocity_error_se=float(errors.std() / n**0.5) if n > 1 else 0.0,
+        contact_score=float(contact.mean()),
+        mean_length=float(length.mean()),
     )
 
 
@@ -278,8 +278,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--command",
         metavar="M/S",
         type=POSITIVE_FLOAT,
-        help="target velocity: asked of a commanded adaptive policy, and what every "
-        "row's velocity error is measured against (default: the gait's)",
+        help="every episode's target velocity (default: the gait's, or a command range's "
+        "policy's: the gait's)",
     )
     add(
         "--episodes",
@@ -353,9 +353,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def commanded(args: argparse.Namespace) -> tuple[float, float] | None:
-    """The eval env's command range: an adaptive policy trained with commands reads one."""
-    if args.task != "adaptive_gait":
-        return None
+    """The eval env's command range: --command, or the gait's speed for a policy
+    trained with commands (it reads one)."""
     trained = args.checkpoint and saved_args(args.checkpoint).get("command_range")
     if args.command is None and not trained:
         return None
@@ -384,7 +383,7 @@ def play(argv: list[str] | None = None) -> list[Evaluation]:
 
     def run(name: str, policy=None, record=None) -> None:
         progress = Progress(f"evaluating {name}", enabled=args.progress)
-        rows.append(evaluate(name, env, args.seed, policy, record, progress, args.command))
+        rows.append(evaluate(name, env, args.seed, policy, record, progress))
 
     if args.base_gait:
         run("base gait", record=recorder if not args.checkpoint else None)

@@ -130,8 +130,8 @@ class Args:
     command_range: tuple[float, ...] = field(
         default=(),
         metadata={
-            "help": "adaptive_gait: draw each episode's target velocity from LOW HIGH m/s "
-            "(none: the starting gait's)",
+            "help": "draw each episode's target velocity from LOW HIGH m/s, shown to the "
+            "policy as the piece command (none: the gait's step_length / cycle_time)",
             "item": float,
         },
     )
@@ -165,8 +165,6 @@ class Args:
             len(self.command_range) != 2 or self.command_range[0] > self.command_range[1]
         ):
             raise ValueError(f"--command-range must be LOW HIGH, got {self.command_range}")
-        if self.command_range and self.task != "adaptive_gait":
-            raise ValueError(f"--command-range needs --task adaptive_gait, got {self.task!r}")
         if not self.hidden_dims or min(self.hidden_dims) < 1:
             raise ValueError(f"--hidden-dims must be sizes >= 1, got {self.hidden_dims}")
 
@@ -187,7 +185,7 @@ def env_config(args: Args) -> EnvConfig:
         settle_reuse=args.settle_reuse,
         max_episode_steps=args.max_episode_steps,
         threads=args.threads,
-        command_range=tuple(args.command_range) or None,
+        command_range=tuple(float(v) for v in args.command_range) or None,
     )
 
 

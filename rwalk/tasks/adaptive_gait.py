@@ -34,7 +34,6 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from rwalk import rng
 from rwalk.config import EnvConfig
 from rwalk.constants import ACTION_DIM
 from rwalk.gait import BezierGaitController, GaitParameters, GaitShape, advance_phase
@@ -42,8 +41,6 @@ from rwalk.tasks.base import ObsPiece, Task
 
 #: The adapted parameters, in the order of the action's and observation's values.
 ADAPTED: tuple[str, ...] = ("step_height", "step_length", "cycle_time", "body_height")
-#: Random stream of the per-episode velocity commands (see ``rwalk.rng``).
-COMMAND_STREAM = "command"
 
 
 class Bound(NamedTuple):
@@ -101,17 +98,13 @@ class GaitBounds:
 
 @dataclass(frozen=True)
 class AdaptiveGaitConfig(EnvConfig):
-    """``EnvConfig`` plus the adaptation bounds and optional velocity commands.
+    """``EnvConfig`` plus the adaptation bounds.
 
     ``gait`` is the gait every episode starts from (and settles with).
     """
 
     bounds: GaitBounds = field(default_factory=GaitBounds)
     """Ranges and delta scales of the adapted parameters."""
-    command_range: tuple[float, float] | None = None
-    """None: the target velocity is the starting gait's step_length / cycle_time.
-    (low, high): each episode draws its target uniformly from it (m/s), and the
-    views expose it as ``command``."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -126,18 +119,6 @@ class AdaptiveGaitConfig(EnvConfig):
                 raise ValueError(
                     f"GaitBounds.{name}: the starting gait's {name}={start!r} is outside "
                     f"[{low!r}, {high!r}]"
-                )
-        if self.command_range is not None:
-            value = self.command_range
-            if not (
-                isinstance(value, tuple)
-                and len(value) == 2
-                and all(isinstance(v, (int, float)) and math.isfinite(v) for v in value)
-                and value[0] <= value[1]
-            ):
-                raise ValueError(
-                    "AdaptiveGaitConfig.command_range must be None or (low, high) m/s with "
-                    f"low <= high, got {value!r}"
                 )
 
     def corner_gaits(self) -> list[tuple[str, GaitParameters]]:
@@ -185,10 +166,6 @@ class AdaptiveGait(Task):
         """Current step_height, step_length, cycle_time, body_height. Shape: (N, 4)."""
         self.gait_phase = torch.zeros(n, dtype=torch.float64)
         """Continuous gait phase in [0, 1) at the start of the next step. Shape: (N,)."""
-        self.target = torch.full((n,), cfg.expected_velocity, dtype=torch.float64)
-        """Target velocity of each env's episode. Shape: (N,). m/s."""
-        self.draws = torch.zeros(n, dtype=torch.long)
-        """Commands drawn so far by each env (the counter of its next draw). Shape: (N,)."""
 
     def pieces(self) -> dict[str, ObsPiece]:
         pieces = super().pieces()
@@ -197,30 +174,12 @@ class AdaptiveGait(Task):
             lambda task: (task.params - task.centre) / task.half_width,
             "step_height, step_length, cycle_time, body_height, each (v - centre) / half_width",
         )
-        pieces["command"] = ObsPiece(
-            1, lambda task: task.target.unsqueeze(-1), "the episode's target velocity (m/s)"
-        )
-        return pieces  # fmt: skip
-
-    def extras(self) -> tuple[str, ...]:
-        commanded = self.core.config.command_range is not None
-        return (*super().extras(), *(("command",) if commanded else ()))
-
-    def seed(self) -> None:
-        self.draws.zero_()
+        return pieces
 
     def reset(self, rows: Tensor) -> None:
         core = self.core
         self.params[rows] = self.start
         self.gait_phase[rows] = core.settled_tick / core.controller.period
-        command = core.config.command_range
-        if command is not None:
-            ids = rows.numpy().astype(np.uint64)
-            counters = self.draws[rows].numpy().astype(np.uint64)
-            keys = rng.keys(np.uint64(core.seed_value) + ids, COMMAND_STREAM, counters)
-            self.draws[rows] += 1
-            u = torch.from_numpy(rng.uniform(keys, 1)[:, 0])
-            self.target[rows] = command[0] + u * (command[1] - command[0])
 
     def act(self, action: Tensor) -> tuple[np.ndarray, Tensor]:
         core = self.core
@@ -237,10 +196,6 @@ class AdaptiveGait(Task):
         return np.ascontiguousarray(ctrl.numpy()), swing
 
     @property
-    def v_target(self) -> Tensor:
-        return self.target
-
-    @property
     def phase(self) -> Tensor:
         return self.gait_phase
 
@@ -252,5 +207,4 @@ class AdaptiveGait(Task):
         return self.params
 
     def state(self) -> dict[str, Tensor]:
-        return {"params": self.params, "gait_phase": self.gait_phase, "target": self.target,
-                "draws": self.draws}  # fmt: skip
+        return super().state() | {"params": self.params, "gait_phase": self.gait_phase}

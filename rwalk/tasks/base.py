@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from rwalk import rng
 from rwalk.config import EnvConfig
 from rwalk.constants import OBS_DIM, OBS_POS
 from rwalk.rewards import RewardTerm, spec_terms
@@ -45,7 +46,12 @@ COMMON_PIECES: dict[str, ObsPiece] = {
     "lateral_offset": ObsPiece(
         1, lambda task: (task.core.obs[:, OBS_POS.start + 1] - task.core.y0).unsqueeze(-1),
         "torso y - y0, the drift the lateral term sees (m)"),
+    "command": ObsPiece(
+        1, lambda task: task.target.unsqueeze(-1),
+        "the episode's target velocity (m/s; config.command_range)"),
 }  # fmt: skip
+#: Random stream of the per-episode velocity commands (see ``rwalk.rng``).
+COMMAND_STREAM = "command"
 
 
 class Task:
@@ -72,6 +78,11 @@ class Task:
 
     def __init__(self, core: Core) -> None:
         self.core = core
+        n = core.num_envs
+        self.target = torch.full((n,), core.config.expected_velocity, dtype=torch.float64)
+        """Target velocity of each env's episode. Shape: (N,). m/s."""
+        self.draws = torch.zeros(n, dtype=torch.long)
+        """Commands drawn so far by each env (the counter of its next draw). Shape: (N,)."""
 
     # ------------------------------------------------------------ declarations
     def pieces(self) -> dict[str, ObsPiece]:
@@ -79,8 +90,10 @@ class Task:
         return dict(COMMON_PIECES)
 
     def extras(self) -> tuple[str, ...]:
-        """Pieces the views offer beside the spec observation."""
-        return ("phase", "lateral_offset")
+        """Pieces the views offer beside the spec observation (``command`` when the
+        config draws commands)."""
+        commanded = self.core.config.command_range is not None
+        return ("phase", "lateral_offset", *(("command",) if commanded else ()))
 
     def reward_terms(self) -> tuple[RewardTerm, ...]:
         """The reward's terms, in the order they are added and reported."""
@@ -101,10 +114,25 @@ class Task:
     # ------------------------------------------------------------ behaviour
     def seed(self) -> None:
         """Restart the task's own random streams (the core was reseeded)."""
+        self.draws.zero_()
 
     def reset(self, rows: Tensor) -> None:
         """Start the episodes of ``rows``, whose starts were just settled. Shape: (M,)."""
         raise NotImplementedError
+
+    def draw_commands(self, rows: Tensor) -> None:
+        """Each env of ``rows`` draws its episode's target velocity from
+        ``config.command_range``: env i's k-th from the key (seed + i, "command", k)."""
+        core = self.core
+        low_high = core.config.command_range
+        if low_high is None:
+            return
+        ids = rows.numpy().astype(np.uint64)
+        counters = self.draws[rows].numpy().astype(np.uint64)
+        keys = rng.keys(np.uint64(core.seed_value) + ids, COMMAND_STREAM, counters)
+        self.draws[rows] += 1
+        u = torch.from_numpy(rng.uniform(keys, 1)[:, 0])
+        self.target[rows] = low_high[0] + u * (low_high[1] - low_high[0])
 
     def act(self, action: Tensor) -> tuple[np.ndarray, Tensor]:
         """Servo targets for the next ``core.decimation`` substeps, and advance the gait.
@@ -121,8 +149,11 @@ class Task:
 
     @property
     def v_target(self) -> Tensor | float:
-        """Velocity the reward tracks: a float, or per env (N,). m/s."""
-        return self.core.config.expected_velocity
+        """Velocity the reward tracks: the gait's (a float), or per env (N,) when the
+        config draws commands. m/s."""
+        if self.core.config.command_range is None:
+            return self.core.config.expected_velocity
+        return self.target
 
     @property
     def phase(self) -> Tensor:
@@ -135,4 +166,4 @@ class Task:
 
     def state(self) -> dict[str, Tensor]:
         """Per-env tensors to keep when the core is pickled."""
-        return {}
+        return {"target": self.target, "draws": self.draws}

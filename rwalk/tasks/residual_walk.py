@@ -50,4 +50,4 @@ class ResidualWalk(Task):
         return self.core.controller.phase_features(self.tick)
 
     def state(self) -> dict[str, Tensor]:
-        return {"tick": self.tick}
+        return super().state() | {"tick": self.tick}

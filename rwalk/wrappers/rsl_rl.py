@@ -8,6 +8,7 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
+from rwalk import episodes
 from rwalk.envs.vec_env import ResidualWalkVecEnv
 
 #: Observation pieces of the residual task's groups (a task may offer more, e.g. ``command``).
@@ -87,19 +88,20 @@ class RslRlVecEnv(VecEnv):
         )
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
-        result = self.core.step(actions)
-        done = result.terminated | result.truncated
+        result, ended = episodes.step(self.core, actions)
         extras: dict = {"time_outs": result.truncated}
-        if bool(done.any()):
-            ids = done.nonzero().squeeze(-1)
-            extras["log"] = self._episode_log(ids, result)
-            self.core.reset(ids)
+        if ended is not None:
+            extras["log"] = self._episode_log(ended.stats)
         reward = (result.reward * self.reward_scale).to(torch.float32)
-        return self.get_observations(), reward, done.long(), extras
+        return (
+            self.get_observations(),
+            reward,
+            (result.terminated | result.truncated).long(),
+            extras,
+        )
 
-    def _episode_log(self, ids: torch.Tensor, result) -> dict[str, torch.Tensor]:
-        stats = self.core.episode_log(ids)
-        length = stats.pop("length")
+    def _episode_log(self, stats: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        length = stats["length"]
         log = {
             f"Episode_Reward/{key.removeprefix('sum/')}": (value / length.clamp(min=1)).mean()
             for key, value in stats.items()
@@ -107,9 +109,9 @@ class RslRlVecEnv(VecEnv):
         }
         velocity = stats["forward_velocity"]
         log["Episode/length"] = length.mean()
-        log["Episode/fall_rate"] = result.terminated[ids].double().mean()
+        log["Episode/fall_rate"] = stats["terminated"].double().mean()
         log["Episode/forward_velocity"] = velocity.mean()
         log["Episode/velocity_error"] = (velocity - stats["target_velocity"]).abs().mean()
-        log["Episode/diverged"] = result.diverged[ids].double().mean()
+        log["Episode/diverged"] = stats["diverged"].double().mean()
         log["Perf/settle_share"] = torch.tensor(self.core.settle_share)
         return log
