@@ -18,9 +18,11 @@ Default ranges, for this robot (legs 0.05 + 0.06 m, hip-to-foot reach
 - body_height 0.05..0.09 m: crouched to nearly stretched (the stance line at
   0.09 m lies 0.0925 m below the hip, inside the 0.109 m reach).
 
-Each delta scale is a twentieth of its range: a full sweep takes 20 steps,
-0.4 s, fast enough to react to a bump within a stride, slow enough that one
-noisy action cannot jump the gait.
+Each delta scale is a fortieth of its range: a full sweep takes 40 steps,
+0.8 s, a cycle or two, fast enough to change the gait between bumps. A first
+training with a twentieth (0.4 s) drifted: small biases in the policy's mean
+deltas integrate, and within 300 steps the gait sat at its bounds (lowest
+steps, longest cycle) and the robot slowed to a near stop (docs/adaptive.md).
 """
 
 from __future__ import annotations
@@ -55,10 +57,10 @@ class Bound(NamedTuple):
 class GaitBounds:
     """Ranges and delta scales of the adapted parameters (metres, seconds)."""
 
-    step_height: Bound = Bound(0.01, 0.04, 0.0015)  # noqa: RUF009 (immutable)
-    step_length: Bound = Bound(0.0, 0.16, 0.008)  # noqa: RUF009 (immutable)
-    cycle_time: Bound = Bound(0.3, 0.9, 0.03)  # noqa: RUF009 (immutable)
-    body_height: Bound = Bound(0.05, 0.09, 0.002)  # noqa: RUF009 (immutable)
+    step_height: Bound = Bound(0.01, 0.04, 0.00075)  # noqa: RUF009 (immutable)
+    step_length: Bound = Bound(0.0, 0.16, 0.004)  # noqa: RUF009 (immutable)
+    cycle_time: Bound = Bound(0.3, 0.9, 0.015)  # noqa: RUF009 (immutable)
+    body_height: Bound = Bound(0.05, 0.09, 0.001)  # noqa: RUF009 (immutable)
 
     def __post_init__(self) -> None:
         for name in ADAPTED:
