@@ -43,14 +43,17 @@ import torch
 
 from rwalk.constants import ACTION_DIM, OBS_DIM
 
-#: Size of each observation piece (the names of ``RslRlVecEnv``'s groups).
-PIECE_SIZES = {"observation": OBS_DIM, "phase": 2, "lateral_offset": 1}
+#: Size of each observation piece of the residual task (the names of ``RslRlVecEnv``'s groups).
+PIECE_SIZES = {"observation": OBS_DIM, "phase": 2, "lateral_offset": 1, "command": 1}
 #: What each piece holds.
 PIECE_CONTENT = {
     "observation": "the spec's 65-D observation (docs/environment.md)",
     "phase": "sin(2*pi*phase), cos(2*pi*phase) of the gait phase in [0, 1)",
     "lateral_offset": "torso y minus its value at the episode's start (m)",
+    "command": "the episode's target velocity (m/s), with EnvConfig.command_range",
 }
+#: The Gymnasium ``info`` key each scalar piece is read from.
+INFO_KEYS = {"phase": "phase", "lateral_offset": "lateral_offset", "command": "target_velocity"}
 #: The policy group of ``RslRlVecEnv`` and ``rwalk-train`` by default.
 DEFAULT_PIECES = ("observation", "phase", "lateral_offset")
 #: ONNX opset of the export (rsl-rl's choice).
@@ -102,26 +105,29 @@ def policy_input(
     """One input row of an exported policy, from the Gymnasium env's ``obs`` and ``info``.
 
     Args:
-        obs: ``ResidualWalkEnv``'s observation. Shape: (65,).
-        info: the ``info`` of the same ``reset``/``step`` (keys ``phase`` in [0, 1)
-            and ``lateral_offset`` in m, where ``pieces`` need them).
+        obs: the Gymnasium env's observation: (65,) for ``ResidualWalkEnv``, (69,)
+            for ``AdaptiveGaitEnv``.
+        info: the ``info`` of the same ``reset``/``step`` (keys ``phase`` in [0, 1),
+            ``lateral_offset`` in m and ``target_velocity`` in m/s, where ``pieces``
+            need them).
         pieces: the export's layout (``policy.json``'s ``pieces`` names).
 
     Returns:
         Shape: (D,) float32 (68 for the default pieces); stack rows for a batch.
     """
     obs = np.asarray(obs, dtype=np.float32)
-    if obs.shape != (OBS_DIM,):
-        raise ValueError(f"obs must have shape ({OBS_DIM},), got {obs.shape}")
+    if obs.shape not in ((OBS_DIM,), (OBS_DIM + 4,)):
+        raise ValueError(f"obs must have shape ({OBS_DIM},) or ({OBS_DIM + 4},), got {obs.shape}")
     parts = []
     for piece in input_layout(pieces):
         name = piece["name"]
         if name == "observation":
             parts.append(obs)
             continue
-        if name not in info:
-            raise KeyError(f"info has no {name!r} (keys: {sorted(info)}); the policy reads it")
-        value = float(info[name])
+        key = INFO_KEYS[name]
+        if key not in info:
+            raise KeyError(f"info has no {key!r} (keys: {sorted(info)}); the policy reads it")
+        value = float(info[key])
         if name == "phase":
             angle = 2.0 * math.pi * value
             parts.append(np.array([math.sin(angle), math.cos(angle)], dtype=np.float32))

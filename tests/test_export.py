@@ -121,7 +121,7 @@ def test_policy_input_checks_its_arguments():
     row = policy_input(obs, {"phase": 0.25, "lateral_offset": -0.5})
     assert row.shape == (68,) and row.dtype == np.float32
     np.testing.assert_allclose(row[65:], [1.0, 0.0, -0.5], atol=1e-7)  # sin, cos of 2π/4
-    with pytest.raises(ValueError, match=r"shape \(65,\), got \(68,\)"):
+    with pytest.raises(ValueError, match=r"shape \(65,\) or \(69,\), got \(68,\)"):
         policy_input(row, {"phase": 0.0, "lateral_offset": 0.0})
     with pytest.raises(KeyError, match="'lateral_offset'"):
         policy_input(obs, {"phase": 0.0})
@@ -166,3 +166,20 @@ def test_an_onnx_policy_runs_an_episode_of_the_gymnasium_env(exported, monkeypat
     exec(compile(code, "environment.md", "exec"), namespace)
     assert namespace["done"] and (len(steps) == 20 or namespace["terminated"])
     assert np.abs(np.stack(steps)).max() > 0  # the policy acted
+
+
+def test_policy_input_builds_the_adaptive_policy_group_with_a_command():
+    from rwalk import AdaptiveGaitConfig, AdaptiveGaitEnv, AdaptiveGaitVecEnv
+
+    config = AdaptiveGaitConfig(model_path=QUICK.model_path, settle_steps=5,
+                                command_range=(0.1, 0.2))  # fmt: skip
+    single = AdaptiveGaitEnv(config=config)
+    batch = RslRlVecEnv(AdaptiveGaitVecEnv(1, config, seed=3))
+    obs, info = single.reset(seed=3)
+    pieces = ("observation", "phase", "lateral_offset", "command")
+    for action in np.random.default_rng(0).uniform(-1, 1, (3, 16)).astype(np.float32):
+        expected = batch.get_observations()["policy"][0].numpy()
+        assert expected.shape == (73,)
+        np.testing.assert_allclose(policy_input(obs, info, pieces), expected, atol=1e-6)
+        obs, _, _, _, info = single.step(action)
+        batch.step(torch.from_numpy(action)[None])
