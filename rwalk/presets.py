@@ -39,9 +39,14 @@ def training_config(
     max_episode_steps: int = 1000,
     threads: int = 0,
     command_range: tuple[float, float] | None = None,
+    start_spread: float = 0.5,
 ) -> EnvConfig:
-    """The training env: rough world, starts spread over the terrain, pooled settling."""
-    return get_task(task).config_type(
+    """The training env: rough world, starts spread over the terrain, pooled settling;
+    for adaptive_gait, starting parameters spread by ``start_spread`` (see
+    ``AdaptiveGaitConfig.start_spread``)."""
+    kind = get_task(task).config_type
+    extra = {"start_spread": start_spread} if "start_spread" in kind.__dataclass_fields__ else {}
+    return kind(
         model_path="model/world_train.xml",
         terrain_scale=terrain_scale,
         randomize=True,
@@ -52,6 +57,7 @@ def training_config(
         max_episode_steps=max_episode_steps,
         num_threads=threads,
         command_range=command_range,
+        **extra,
     )
 
 

@@ -135,6 +135,13 @@ class Args:
             "item": float,
         },
     )
+    start_spread: float = field(
+        default=0.5,
+        metadata={
+            "help": "adaptive_gait: episodes start from gait parameters spread by this "
+            "fraction of each range (0: the starting gait; residual_walk ignores it)"
+        },
+    )
     threads: int = field(default=0, metadata={"help": "physics threads (0 = all cores)"})
     export: bool = field(default=True, metadata={"help": "export TorchScript and ONNX at the end"})
 
@@ -156,6 +163,7 @@ class Args:
         require_positive(self, "max_minutes", finite=False)
         require_at_least(self, 0, "entropy_coef")
         require_in(self, "gamma", 0.0, 1.0, low_open=True)
+        require_in(self, "start_spread", 0.0, 1.0)
         require_in(self, "terrain_scale", 0.0, 1.0)
         require_in(self, "settle_pool_fraction", 0.0, 1.0, low_open=True)
         from rwalk.tasks import get_task
@@ -186,6 +194,7 @@ def env_config(args: Args) -> EnvConfig:
         max_episode_steps=args.max_episode_steps,
         threads=args.threads,
         command_range=tuple(float(v) for v in args.command_range) or None,
+        start_spread=args.start_spread,
     )
 
 

@@ -36,11 +36,14 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from rwalk import rng
 from rwalk.config import EnvConfig
 from rwalk.constants import ACTION_DIM
 from rwalk.gait import BezierGaitController, GaitParameters, GaitShape, advance_phase
 from rwalk.tasks.base import ObsPiece, Task
 
+#: Random stream of the starting parameters with ``start_spread`` (see ``rwalk.rng``).
+START_GAIT_STREAM = "gait_start"
 #: The adapted parameters, in the order of the action's and observation's values.
 ADAPTED: tuple[str, ...] = ("step_height", "step_length", "cycle_time", "body_height")
 
@@ -107,9 +110,23 @@ class AdaptiveGaitConfig(EnvConfig):
 
     bounds: GaitBounds = field(default_factory=GaitBounds)
     """Ranges and delta scales of the adapted parameters."""
+    start_spread: float = 0.0
+    """0: every episode starts from ``gait`` (the contract's reset). s in (0, 1]:
+    after settling with ``gait``, each episode starts from parameters drawn
+    uniformly within s x each range around ``gait`` (clipped to the range): a
+    training option, so that the policy and its critic see how the parameters
+    matter instead of learning from the tiny spread of exploration noise."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if not (
+            isinstance(self.start_spread, (int, float))
+            and not isinstance(self.start_spread, bool)
+            and 0.0 <= self.start_spread <= 1.0
+        ):
+            raise ValueError(
+                f"AdaptiveGaitConfig.start_spread must be in [0, 1], got {self.start_spread!r}"
+            )
         if not isinstance(self.bounds, GaitBounds):
             raise TypeError(
                 f"AdaptiveGaitConfig.bounds must be a GaitBounds, got {type(self.bounds).__name__}"
@@ -165,6 +182,8 @@ class AdaptiveGait(Task):
         )
         n = core.num_envs
         self.params = self.start.repeat(n, 1)
+        self.start_draws = torch.zeros(n, dtype=torch.long)
+        """Starting parameters drawn so far by each env (with start_spread). Shape: (N,)."""
         """Current step_height, step_length, cycle_time, body_height. Shape: (N, 4)."""
         self.gait_phase = torch.zeros(n, dtype=torch.float64)
         """Continuous gait phase in [0, 1) at the start of the next step. Shape: (N,)."""
@@ -178,9 +197,24 @@ class AdaptiveGait(Task):
         )
         return pieces
 
+    def seed(self) -> None:
+        super().seed()
+        self.start_draws.zero_()
+
     def reset(self, rows: Tensor) -> None:
         core = self.core
         self.params[rows] = self.start
+        spread = core.config.start_spread
+        if spread > 0:
+            ids = rows.numpy().astype(np.uint64)
+            counters = self.start_draws[rows].numpy().astype(np.uint64)
+            keys = rng.keys(np.uint64(core.seed_value) + ids, START_GAIT_STREAM, counters)
+            self.start_draws[rows] += 1
+            u = torch.from_numpy(2.0 * rng.uniform(keys, len(ADAPTED)) - 1.0)
+            offset = u * (spread * (self.high - self.low))
+            self.params[rows] = torch.minimum(
+                torch.maximum(self.start + offset, self.low), self.high
+            )
         self.gait_phase[rows] = core.settled_tick / core.controller.period
 
     def act(self, action: Tensor) -> tuple[np.ndarray, Tensor]:
@@ -209,4 +243,5 @@ class AdaptiveGait(Task):
         return self.params
 
     def state(self) -> dict[str, Tensor]:
-        return super().state() | {"params": self.params, "gait_phase": self.gait_phase}
+        return super().state() | {"params": self.params, "gait_phase": self.gait_phase,
+                                  "start_draws": self.start_draws}  # fmt: skip
