@@ -7,19 +7,14 @@ the evaluator, the benchmark and the TorchRL trainer run the same episodes.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 from rwalk.config import EnvConfig
-from rwalk.gait import GaitParameters
-from rwalk.physics import Physics
-from rwalk.rewards import RewardWeights
 from rwalk.tasks import get_task
 
 __all__ = [
-    "BASE_GAIT_SPREAD", "START_SPREAD", "base_gait_config", "config_from_dict",
+    "BASE_GAIT_SPREAD", "START_SPREAD", "base_gait_config",
     "evaluation_config", "get_task", "training_config",
 ]  # fmt: skip
-from rwalk.tasks.adaptive_gait import GaitBounds
 
 #: Half-widths (x, y) of the start spread over the training terrain. Metres.
 START_SPREAD = (0.5, 1.2)
@@ -93,26 +88,3 @@ def base_gait_config(world: str, **overrides) -> EnvConfig:
         tilt_noise=0.0,
     )
     return dataclasses.replace(config, **overrides)
-
-
-def config_from_dict(task: str, values: dict[str, Any]) -> EnvConfig:
-    """Rebuild a task's config from ``dataclasses.asdict`` output (e.g. a run's config.json).
-
-    Raises:
-        ValueError: an unknown task, or a value the config refuses (naming it).
-    """
-    kind = get_task(task).config_type
-    nested = {"gait": GaitParameters, "physics": Physics, "reward_weights": RewardWeights}
-    out = {}
-    names = {f.name for f in dataclasses.fields(kind)}
-    for key, value in values.items():
-        if key not in names:
-            raise ValueError(f"{kind.__name__} has no field {key!r}")
-        if key in nested:
-            value = nested[key](**value)
-        elif key == "bounds":
-            value = GaitBounds(**{k: tuple(v) for k, v in value.items()})
-        elif isinstance(value, list):
-            value = tuple(value)
-        out[key] = value
-    return kind(**out)

@@ -266,3 +266,31 @@ def test_a_new_term_is_one_function_and_one_line(monkeypatch):
     torch.testing.assert_close(total, td["next", "reward"])
     assert "upright" in env.core.episode_sums
     assert "sum/upright" in env.core.episode_log(torch.tensor([0]))
+
+
+def test_start_spread_draws_parameters_across_the_ranges_per_episode():
+    c = core(64, seed=2, start_spread=0.5)
+    c.reset()
+    params = c.task.params.clone()
+    b = c.config.bounds
+    low = torch.tensor([getattr(b, n).low for n in ADAPTED], dtype=F64)
+    high = torch.tensor([getattr(b, n).high for n in ADAPTED], dtype=F64)
+    assert ((params >= low) & (params <= high)).all()
+    spread = params.max(0).values - params.min(0).values
+    assert (spread > 0.8 * (high - low)).all()  # 0.5 around the centred start: the whole range
+    again = core(64, seed=2, start_spread=0.5)
+    again.reset()
+    assert torch.equal(again.task.params, params)  # a pure function of the seed
+    c.reset(np.array([0]))
+    assert not torch.equal(c.task.params[0], params[0])  # each episode draws anew
+
+
+def test_without_start_spread_every_episode_starts_from_gait_params():
+    c = core(3, seed=2)
+    c.reset()
+    assert (c.task.params == c.task.start).all()
+
+
+def test_start_spread_outside_zero_one_is_refused():
+    with pytest.raises(ValueError, match=r"start_spread must be in \[0, 1\], got 1.5"):
+        AdaptiveGaitConfig(start_spread=1.5)
