@@ -7,8 +7,9 @@ which reward terms it adds up.
 
 Step: check action -> task: servo targets for K substeps (and the gait's swing
 flags) -> one batched MuJoCo rollout -> counters -> observation -> the task's
-declared reward terms -> terminations. The core never resets on its own: the TorchRL, Gymnasium and
-rsl-rl views each apply their own reset convention on top of it.
+declared reward terms -> terminations. The core never resets on its own: the
+TorchRL, Gymnasium and rsl-rl views each apply their own reset convention on
+top of it (``rwalk.episodes`` is the auto-reset they share).
 
 Reset: each start is drawn from its own counter-based key, placed above the
 ground, then settled with zero residuals for ``settle_steps`` env steps while
@@ -174,6 +175,7 @@ class Core:
         self._settle_ctrl = self._base_gait_ctrl(config.settle_steps * self.decimation)
         self._stand_joints = self._base_gait_ctrl(1)[0]
         self.settled_tick = config.settle_steps * self.decimation % self.controller.period
+        """Gait tick (substeps from phase 0, modulo the cycle) where settling leaves a start."""
         self._pool = _StartPool(self, config.settle_pool) if config.settle_pool else None
         self.physics_steps = {"step": 0, "settle": 0}
         """Physics substeps run so far: stepping the envs, and settling starts."""

@@ -8,21 +8,22 @@ ranges. Every env carries its own parameters and a continuous phase: a new
 cycle time changes how fast the phase advances, never the phase itself.
 
 Default ranges, for this robot (legs 0.05 + 0.06 m, hip-to-foot reach
-0.026..0.109 m, servos ~6 rad/s, bumps up to ~3 cm):
+0.026..0.109 m) and world_train's ground (heights with a standard deviation of
+8.6 mm at full roughness, bumps ~0.1 m apart):
 
-- step_height 0.01..0.04 m: the apex clears the bumps; its top stays below the
-  lowest body height, with room for the swing leg to fold.
+- step_height 0.01..0.04 m: about 1 to 5 standard deviations of the ground; its
+  top stays below the lowest body height, with room for the swing leg to fold.
 - step_length 0..0.16 m: from stepping in place to a stride whose stance sweep
   (0.65 x 0.16 = 0.10 m) the legs reach at every body height in range.
-- cycle_time 0.3..0.9 s: 0.3 s leaves 0.1 s swings, about what the servos follow.
+- cycle_time 0.3..0.9 s: at duty 0.65, 0.3 s leaves 0.105 s swings (26 physics
+  steps); 0.9 s is 1.5 x the nominal 0.6 s.
 - body_height 0.05..0.09 m: crouched to nearly stretched (the stance line at
   0.09 m lies 0.0925 m below the hip, inside the 0.109 m reach).
 
 Each delta scale is a fortieth of its range: a full sweep takes 40 steps,
-0.8 s, a cycle or two, fast enough to change the gait between bumps. A first
-training with a twentieth (0.4 s) drifted: small biases in the policy's mean
-deltas integrate, and within 300 steps the gait sat at its bounds (lowest
-steps, longest cycle) and the robot slowed to a near stop (docs/adaptive.md).
+0.8 s, one to three gait cycles: fast enough to change the gait between bumps,
+slow enough that a few noisy actions move it little. (A twentieth was tried
+first; docs/adaptive.md tells what training made of both.)
 """
 
 from __future__ import annotations
