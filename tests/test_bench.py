@@ -151,3 +151,13 @@ def test_rwalk_against_envpool_when_installed():
             ours["robot_seconds_per_core_second"] / theirs["robot_seconds_per_core_second"]
         )
         assert theirs["memory_per_env_mb"] > 0 and 0 < theirs["cores_busy"] < 1.5
+
+
+def test_the_adaptive_task_runs_against_a_floor_of_its_own():
+    results = bench(["--only", "g,4,1", "--seconds", "0.2"])
+    by_mode = {r["mode"]: r for r in results}
+    assert set(by_mode) == {"a", "g"}
+    g = by_mode["g"]
+    assert g["ratio_to_floor"] == g["physics_steps_per_s"] / g["floor_physics_steps_per_s"]
+    assert 0.0 < g["time_in_mujoco"] <= 1.0
+    assert "| g AdaptiveGaitVecEnv | 4 | 1 |" in table(results)
