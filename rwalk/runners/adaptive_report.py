@@ -47,7 +47,8 @@ def run_row(name, checkpoint, episodes, seed, scale, command=None) -> Evaluation
     env = make_env(task, episodes, seed, scale, command)
     policy = None if checkpoint is None else load_policy(checkpoint, env)
     row = evaluate(name, env, seed, policy)
-    return dataclasses.replace(row, name=f"{name} | {scale:g} | {command or '-'}")
+    asked = "-" if command is None else f"{command:.3f}"
+    return dataclasses.replace(row, name=f"{name} | {scale:g} | {asked}")
 
 
 def gait_trace(checkpoint: Path, seed: int, scale: float, steps: int) -> np.ndarray:
@@ -100,7 +101,7 @@ def table(rows: list[Evaluation]) -> str:
     for r in rows:
         lines.append(
             f"| {r.name} | {r.fall_rate:.0%} | {r.forward_velocity:.3f} | "
-            f"{r.velocity_error:.3f} ± {r.velocity_error_se * 1.96:.3f} | {r.mean_return:,.0f} |"
+            f"{r.velocity_error:.4f} ± {r.velocity_error_se * 1.96:.4f} | {r.mean_return:,.0f} |"
         )
     return "\n".join(lines)
 
@@ -109,15 +110,23 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--residual", type=Path, required=True, help="residual checkpoint")
-    parser.add_argument("--adaptive", type=Path, required=True, help="adaptive checkpoint")
     add = parser.add_argument
+    add("--residual", type=Path, help="residual checkpoint")
+    add("--adaptive", type=Path, help="adaptive checkpoint")
     add("--episodes", type=POSITIVE_INT, default=100, help="paired episodes")
-    parser.add_argument("--seed", type=NATURAL_INT, default=1000, help="first episode's seed")
-    parser.add_argument("--train-scale", type=UNIT_FLOAT, default=0.6, help="training terrain")
-    parser.add_argument("--rough-scale", type=UNIT_FLOAT, default=1.0, help="rougher terrain")
-    parser.add_argument("--out", type=Path, default=Path("docs"), help="output folder")
+    add("--seed", type=NATURAL_INT, default=1000, help="first episode's seed")
+    add("--train-scale", type=UNIT_FLOAT, default=0.6, help="training terrain")
+    add("--rough-scale", type=UNIT_FLOAT, default=1.0, help="rougher terrain")
+    add("--out", type=Path, default=Path("docs"), help="output folder")
+    add("--tables", type=Path, help="only print the tables of an adaptive.json")
     args = parser.parse_args(argv)
+    if args.tables:
+        data = json.loads(args.tables.read_text())
+        for label in ("a", "b", "c"):
+            print(f"\n({label})\n{table([Evaluation(**row) for row in data[label]])}")
+        return
+    if args.residual is None or args.adaptive is None:
+        parser.error("give --residual and --adaptive checkpoints (or --tables)")
     policies = {"base gait": None, "residual": args.residual, "adaptive": args.adaptive}
     out = {}
     for label, scale in (("a", args.train_scale), ("b", args.rough_scale)):
