@@ -54,3 +54,10 @@ def test_architecture_examples_run_as_registered_tasks(monkeypatch):
     stand_env = ResidualWalkVecEnv(2, config, seed=0, task="stand")
     td = stand_env.step(stand_env.reset().set("action", torch.zeros(2, 12)))
     assert not td["next", "terminated"].any()
+
+
+def test_adaptive_example_runs():
+    (code,) = _blocks("adaptive.md")
+    namespace: dict = {}
+    exec(compile(code, "adaptive.md", "exec"), namespace)
+    assert namespace["obs"].shape == (69,) and namespace["td"]["command"].shape == (8, 1)
