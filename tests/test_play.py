@@ -134,8 +134,9 @@ def test_play_help_shows_the_command_and_every_default():
     entries = [entry for entry in options.split("\n  -") if entry.strip()][1:]  # after --help
     flags = [entry.split()[0].rstrip(",") for entry in entries]
     assert flags == [
-        "-checkpoint", "-base-gait", "-episodes", "-seed", "-terrain-scale", "-max-steps",
-        "-settle-steps", "-video", "-video-seconds", "-json", "-progress",
+        "-checkpoint", "-base-gait", "-task", "-command", "-episodes", "-seed",
+        "-terrain-scale", "-max-steps", "-settle-steps", "-video", "-video-seconds", "-json",
+        "-progress",
     ]  # fmt: skip
     for flag, entry in zip(flags, entries, strict=True):
         assert "(default:" in " ".join(entry.split()), flag

@@ -384,8 +384,8 @@ def test_help_works_from_a_checkout(module):
     done = subprocess.run([sys.executable, "-m", module, "--help"], cwd=ROOT,
                           capture_output=True, text=True, timeout=120, check=False)  # fmt: skip
     assert done.returncode == 0, done.stderr
-    assert done.stdout.startswith(f"usage: python -m rwalk.{module} [-h] [--num-envs INT]")
-    assert "--max-iterations INT" in done.stdout
+    assert done.stdout.startswith(f"usage: python -m rwalk.{module} [-h] ")
+    assert "--num-envs INT" in done.stdout and "--max-iterations INT" in done.stdout
 
 
 def test_atomic_writes_get_the_mode_of_a_plain_write(tmp_path):
@@ -424,3 +424,23 @@ def test_the_time_budget_does_not_count_building_the_envs_as_an_iteration(tmp_pa
     monkeypatch.setattr(train.SafeRunner, "learn", learn_one_second_each)
     tiny_train(tmp_path, "--max-minutes", "5", "--max-iterations", "10", "--save-interval", "5")
     assert iterations(tmp_path) == [0, 5, 9]  # 110 s of a 300 s budget: every iteration ran
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (
+            ["--task", "walk"],
+            "unknown task 'walk'; known tasks: ['adaptive_gait', 'residual_walk']",
+        ),
+        (["--command-range", "0.3", "0.1"], "--command-range must be LOW HIGH"),
+        (["--command-range", "0.1"], "--command-range must be LOW HIGH"),
+        (["--start-spread", "2"], "--start-spread must be in [0, 1], got 2.0"),
+    ],
+)
+def test_bad_task_flags_are_usage_errors(argv, message, capsys):
+    from rwalk.runners.train import parse_args
+
+    with pytest.raises(SystemExit) as exit_info:
+        parse_args(argv)
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err

@@ -278,8 +278,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--command",
         metavar="M/S",
         type=POSITIVE_FLOAT,
-        help="every episode's target velocity (default: the gait's, or a command range's "
-        "policy's: the gait's)",
+        help="every episode's target velocity, which the reward and the velocity error "
+        "track (default: the gait's step_length / cycle_time)",
     )
     add(
         "--episodes",
