@@ -37,12 +37,7 @@ def task_for_config(config: EnvConfig) -> type[Task]:
     raise TypeError(f"no task takes a {type(config).__name__}; known tasks: {sorted(TASKS)}")
 
 
-def default_config(name: str) -> EnvConfig:
-    """The default config of the task ``name``."""
-    return get_task(name).config_type()
-
-
 __all__ = [
     "TASKS", "AdaptiveGait", "AdaptiveGaitConfig", "GaitBounds", "ObsPiece", "ResidualWalk",
-    "Task", "default_config", "get_task", "task_for_config",
+    "Task", "get_task", "task_for_config",
 ]  # fmt: skip

@@ -11,9 +11,6 @@ from tensordict import TensorDict
 from rwalk import episodes
 from rwalk.envs.vec_env import ResidualWalkVecEnv
 
-#: Observation pieces of the residual task's groups (a task may offer more, e.g. ``command``).
-OBS_PIECES = ("observation", "phase", "lateral_offset")
-
 
 class RslRlVecEnv(VecEnv):
     """Adapts the batched env to rsl-rl: auto-reset inside ``step``, observation
