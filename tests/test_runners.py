@@ -128,16 +128,19 @@ def test_play_films_an_episode(tmp_path):
     assert frames.std() > 5  # not a blank image
 
 
-def test_train_torchrl_runs_two_iterations(tmp_path):
+@pytest.mark.parametrize(("task", "actions"), [("residual_walk", 12), ("adaptive_gait", 16)])
+def test_train_torchrl_runs_two_iterations(tmp_path, task, actions):
     out = run(
         "rwalk.runners.train_torchrl", "--num-envs", "8", "--max-iterations", "2",
         "--num-steps-per-env", "8", "--num-mini-batches", "2", "--settle-steps", "2",
-        "--hidden-dims", "16", "16", "--log-dir", str(tmp_path),
+        "--hidden-dims", "16", "16", "--log-dir", str(tmp_path), "--task", task,
     )  # fmt: skip
     assert "[torchrl] iteration 2/2" in out
     saved = load_checkpoint(tmp_path / "torchrl_2.pt")
     assert saved["iteration"] == 2 and "actor" in saved and saved["trainer"] == "torchrl"
     assert saved["actor"]["module.0.module.0.0.weight"].shape[0] == 16
+    weights = [v for k, v in saved["actor"].items() if k.endswith("weight")]
+    assert weights[-1].shape[0] == 2 * actions  # loc and scale of each action
     assert json.loads((tmp_path / "config.json").read_text())["max_iterations"] == 2
 
 

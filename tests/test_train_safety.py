@@ -344,7 +344,7 @@ def test_both_trainers_share_the_names_of_shared_flags():
         "num_envs", "max_iterations", "num_steps_per_env", "num_learning_epochs",
         "num_mini_batches", "hidden_dims", "learning_rate", "gamma", "entropy_coef",
         "init_noise_std", "reward_scale", "settle_steps", "seed", "threads", "log_dir",
-        "save_interval",
+        "save_interval", "task",
     }  # fmt: skip
     for args_class in (train.Args, train_torchrl.Args):
         assert shared <= {f.name for f in dataclasses.fields(args_class)}, args_class

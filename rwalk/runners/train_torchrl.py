@@ -58,6 +58,9 @@ class Args:
         ValueError: naming the flag, for a value out of its range.
     """
 
+    task: str = field(
+        default="residual_walk", metadata={"help": "task: residual_walk or adaptive_gait"}
+    )
     num_envs: int = field(default=256, metadata={"help": "parallel envs"})
     max_iterations: int = field(
         default=50, metadata={"help": "PPO iterations (collect + update rounds)"}
@@ -82,6 +85,9 @@ class Args:
     )
 
     def __post_init__(self) -> None:
+        from rwalk.tasks import get_task
+
+        get_task(self.task)  # ValueError listing the known tasks
         require_at_least(
             self,
             1,
@@ -106,17 +112,16 @@ class Args:
             )
 
 
-OBS_KEYS = ("observation", "phase", "lateral_offset")
-
-
 def make_env(args: Args) -> TransformedEnv:
     config = presets.training_config(
-        num_envs=args.num_envs, threads=args.threads, settle_steps=args.settle_steps
+        args.task, num_envs=args.num_envs, threads=args.threads, settle_steps=args.settle_steps
     )
+    base = ResidualWalkVecEnv(args.num_envs, config, seed=args.seed, task=args.task)
+    keys = ["observation", *base.extras]  # the spec observation and the task's extra pieces
     env = TransformedEnv(
-        ResidualWalkVecEnv(args.num_envs, config, seed=args.seed),
+        base,
         Compose(
-            CatTensors(list(OBS_KEYS), "policy_obs", del_keys=False),
+            CatTensors(keys, "policy_obs", del_keys=False),
             ObservationNorm(in_keys=["policy_obs"], standard_normal=True),
             RewardScaling(loc=0.0, scale=args.reward_scale),
         ),
