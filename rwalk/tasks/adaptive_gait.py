@@ -183,9 +183,9 @@ class AdaptiveGait(Task):
         )
         n = core.num_envs
         self.params = self.start.repeat(n, 1)
+        """Current step_height, step_length, cycle_time, body_height. Shape: (N, 4)."""
         self.start_draws = torch.zeros(n, dtype=torch.long)
         """Starting parameters drawn so far by each env (with start_spread). Shape: (N,)."""
-        """Current step_height, step_length, cycle_time, body_height. Shape: (N, 4)."""
         self.gait_phase = torch.zeros(n, dtype=torch.float64)
         """Continuous gait phase in [0, 1) at the start of the next step. Shape: (N,)."""
 
