@@ -55,22 +55,17 @@ def __getattr__(name: str):
 def _register() -> None:
     import gymnasium
 
-    if GYM_ID not in gymnasium.registry:
-        # One episode length: make's TimeLimit (spec.max_episode_steps, the spec's 1000 unless
-        # make is given another); the env itself then has no limit of its own.
-        gymnasium.register(
-            id=GYM_ID,
-            entry_point="rwalk.envs.gym_env:ResidualWalkEnv",
-            max_episode_steps=1000,
-            kwargs={"max_episode_steps": None},
-        )
-    if ADAPTIVE_GYM_ID not in gymnasium.registry:
-        gymnasium.register(
-            id=ADAPTIVE_GYM_ID,
-            entry_point="rwalk.envs.gym_env:AdaptiveGaitEnv",
-            max_episode_steps=1000,
-            kwargs={"max_episode_steps": None},
-        )
+    views = {GYM_ID: "ResidualWalkEnv", ADAPTIVE_GYM_ID: "AdaptiveGaitEnv"}
+    for env_id, view in views.items():
+        if env_id not in gymnasium.registry:
+            # One episode length: make's TimeLimit (spec.max_episode_steps, the spec's 1000
+            # unless make is given another); the env itself then has no limit of its own.
+            gymnasium.register(
+                id=env_id,
+                entry_point=f"rwalk.envs.gym_env:{view}",
+                max_episode_steps=1000,
+                kwargs={"max_episode_steps": None},
+            )
 
 
 _register()

@@ -37,7 +37,6 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from rwalk import rng
 from rwalk.config import EnvConfig
 from rwalk.constants import ACTION_DIM
 from rwalk.gait import BezierGaitController, GaitParameters, GaitShape, advance_phase
@@ -207,11 +206,7 @@ class AdaptiveGait(Task):
         self.params[rows] = self.start
         spread = core.config.start_spread
         if spread > 0:
-            ids = rows.numpy().astype(np.uint64)
-            counters = self.start_draws[rows].numpy().astype(np.uint64)
-            keys = rng.keys(np.uint64(core.seed_value) + ids, START_GAIT_STREAM, counters)
-            self.start_draws[rows] += 1
-            u = torch.from_numpy(2.0 * rng.uniform(keys, len(ADAPTED)) - 1.0)
+            u = 2.0 * self.uniform(rows, START_GAIT_STREAM, self.start_draws, len(ADAPTED)) - 1.0
             offset = u * (spread * (self.high - self.low))
             self.params[rows] = torch.minimum(
                 torch.maximum(self.start + offset, self.low), self.high

@@ -123,16 +123,21 @@ class Task:
     def draw_commands(self, rows: Tensor) -> None:
         """Each env of ``rows`` draws its episode's target velocity from
         ``config.command_range``: env i's k-th from the key (seed + i, "command", k)."""
-        core = self.core
-        low_high = core.config.command_range
+        low_high = self.core.config.command_range
         if low_high is None:
             return
-        ids = rows.numpy().astype(np.uint64)
-        counters = self.draws[rows].numpy().astype(np.uint64)
-        keys = rng.keys(np.uint64(core.seed_value) + ids, COMMAND_STREAM, counters)
-        self.draws[rows] += 1
-        u = torch.from_numpy(rng.uniform(keys, 1)[:, 0])
+        u = self.uniform(rows, COMMAND_STREAM, self.draws, 1)[:, 0]
         self.target[rows] = low_high[0] + u * (low_high[1] - low_high[0])
+
+    def uniform(self, rows: Tensor, stream: str, counters: Tensor, n: int) -> Tensor:
+        """n uniform [0, 1) numbers per env of ``rows`` from env i's key (seed + i,
+        ``stream``, counters[i]); each counter then moves on by one. Shape: (M, n) float64."""
+        ids = rows.numpy().astype(np.uint64)
+        keys = rng.keys(
+            np.uint64(self.core.seed_value) + ids, stream, counters[rows].numpy().astype(np.uint64)
+        )
+        counters[rows] += 1
+        return torch.from_numpy(rng.uniform(keys, n))
 
     def act(self, action: Tensor) -> tuple[np.ndarray, Tensor]:
         """Servo targets for the next ``core.decimation`` substeps, and advance the gait.
