@@ -7,6 +7,7 @@ from dataclasses import dataclass, field, fields
 
 from rwalk.gait import GaitParameters
 from rwalk.physics import Physics
+from rwalk.randomization import ObservationNoise, Pushes, Randomization
 from rwalk.rewards import RewardWeights
 
 #: Most physics substeps per env step: the controller's targets for a whole control
@@ -69,13 +70,26 @@ class EnvConfig:
     """None: the reward tracks the gait's step_length / cycle_time (the spec). (low,
     high): each episode draws its target velocity uniformly from it (m/s), and the
     views expose it as the piece ``command``."""
+    randomization: Randomization | None = None
+    """Per-env physics (friction, payload, servo strength, ...) drawn at every reset;
+    None: the model's own (the spec's env). See ``rwalk.randomization``."""
+    pushes: Pushes | None = None
+    """Random horizontal kicks to the torso; None: no kicks."""
+    observation_noise: ObservationNoise | None = None
+    """Noise on the policy's observation group (never the critic's); None: exact."""
 
     def __post_init__(self) -> None:
         def bad(name: str, why: str) -> ValueError:
             return ValueError(f"EnvConfig.{name} {why}, got {getattr(self, name)!r}")
 
         kinds = (("gait", GaitParameters), ("reward_weights", RewardWeights), ("physics", Physics))
-        for name, kind in kinds:
+        optional = (
+            ("randomization", Randomization), ("pushes", Pushes),
+            ("observation_noise", ObservationNoise),
+        )  # fmt: skip
+        for name, kind in kinds + optional:
+            if (name, kind) in optional and getattr(self, name) is None:
+                continue
             if not isinstance(getattr(self, name), kind):
                 raise TypeError(
                     f"EnvConfig.{name} must be a {kind.__name__}, got "

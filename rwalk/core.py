@@ -55,6 +55,7 @@ from rwalk.constants import (
 )
 from rwalk.gait import BezierGaitController
 from rwalk.kinematics import LegGeometry
+from rwalk.randomization import Perturbations
 from rwalk.rewards import StepState, evaluate, fallen, quat_to_rpy
 from rwalk.sim import BatchedSim
 from rwalk.single import SingleStep, SingleStepResult
@@ -177,6 +178,12 @@ class Core:
         self.settled_tick = config.settle_steps * self.decimation % self.controller.period
         """Gait tick (substeps from phase 0, modulo the cycle) where settling leaves a start."""
         self._pool = _StartPool(self, config.settle_pool) if config.settle_pool else None
+        tail = self._settle_ctrl[-self.decimation :]
+        self._settle_tail = (
+            tail if len(tail) == self.decimation else self._base_gait_ctrl(self.decimation)
+        )
+        self.perturb = Perturbations(self)
+        """The config's randomised physics, pushes, latency and observation noise."""
         self.physics_steps = {"step": 0, "settle": 0}
         """Physics substeps run so far: stepping the envs, and settling starts."""
         self.resets = 0
@@ -195,6 +202,7 @@ class Core:
     _REBUILT = (
         "model", "terrain", "geometry", "controller", "sim", "_sensors", "_settle_ctrl",
         "_stand_joints", "_pool", "settle_progress", "_single", "task", "terms",
+        "_settle_tail", "perturb",
     )  # fmt: skip
 
     def __getstate__(self) -> dict:
@@ -205,6 +213,7 @@ class Core:
         state["terrain_scale"] = self.terrain.scale
         state["task_state"] = {k: v.clone() for k, v in self.task.state().items()}
         state["task_name"] = self.task.name
+        state["perturb_state"] = {k: v.clone() for k, v in self.perturb.state().items()}
         pool = self._pool
         if pool is not None:
             state["pool"] = (pool.sim.state.copy(), pool.obs.clone(), pool.uses_left.copy(),
@@ -216,6 +225,7 @@ class Core:
         sim_state, scale = state.pop("sim_state"), state.pop("terrain_scale")
         pool = state.pop("pool", None)
         task_state = state.pop("task_state")
+        perturb_state = state.pop("perturb_state")
         self.__init__(state["config"], state["num_envs"], seed=0, task=state.pop("task_name"))
         if scale != self.terrain.scale:
             self.set_terrain_scale(scale)
@@ -223,6 +233,9 @@ class Core:
         self.sim.state[:] = sim_state
         for name, value in self.task.state().items():
             value.copy_(task_state[name])
+        for name, value in self.perturb.state().items():
+            value.copy_(perturb_state[name])
+        self.perturb.apply(torch.arange(self.num_envs))
         if pool is not None:
             self._pool.sim.state[:], self._pool.obs, self._pool.uses_left, self._pool._next = pool
 
@@ -264,6 +277,7 @@ class Core:
         self._starts_drawn = np.zeros(self.num_envs + pool_size, dtype=np.uint64)
         """Starts drawn so far by each env, then by each pool entry. Shape: (N + pool,)."""
         self.task.seed()
+        self.perturb.seed(self._seed)
         return self._seed
 
     # ------------------------------------------------------------------ reset
@@ -285,6 +299,7 @@ class Core:
             return
         randomize = self.config.randomize if randomize is None else bool(randomize)
         rows = torch.from_numpy(ids.astype(np.int64))
+        self.perturb.reset(rows, self._settle_tail)  # before settling: settle in the env's world
         pool = self._pool
         if (
             pool is not None
@@ -439,6 +454,8 @@ class Core:
         action = self.check_action(action)
         cfg = self.config
         ctrl, swing = self.task.act(action)
+        ctrl = self.perturb.delay(ctrl)
+        self.perturb.before_step()  # kicks at the control-step boundary
         diverged = torch.from_numpy(self.sim.rollout(ctrl))
         self.physics_steps["step"] += self.num_envs * self.decimation
         # In place, like every state update here: callers step inside torch.inference_mode
@@ -543,6 +560,12 @@ class Core:
         Raises:
             ValueError: naming the world, if its ground is a plane.
         """
+        if self.config.randomization is not None:
+            raise ValueError(
+                "set_terrain_scale cannot change the ground of a core with per-env physics "
+                "(EnvConfig.randomization): mujoco.batch keeps per-env fields only on one "
+                "model; build the core with the terrain_scale you want instead"
+            )
         try:
             self.terrain.set_scale(self.model, scale)
         except ValueError as error:

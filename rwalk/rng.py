@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 
 import numpy as np
+import torch
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MIX1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -74,3 +75,23 @@ def uniform(keys: np.ndarray, n: int) -> np.ndarray:
         counters = np.arange(1, n + 1, dtype=np.uint64)
         bits = _splitmix64(k[:, None] ^ _splitmix64(counters)[None, :])
     return (bits >> np.uint64(11)).astype(np.float64) * (1.0 / (1 << 53))
+
+
+def uniform_rows(seed: int, rows, stream: str, counters, n: int):
+    """n uniform [0, 1) numbers for each env of ``rows`` from env i's key (seed + i,
+    ``stream``, counters[i]); each counter then moves on by one.
+
+    Args:
+        seed: the batch's base seed.
+        rows: env indices, a torch tensor. Shape: (M,).
+        counters: each env's draws so far, a torch long tensor (updated in place). Shape: (N,).
+
+    Returns:
+        Shape: (M, n) torch float64.
+    """
+    ids = rows.numpy().astype(np.uint64)
+    with np.errstate(over="ignore"):
+        seeds = np.uint64(seed) + ids
+    drawn = keys(seeds, stream, counters[rows].numpy().astype(np.uint64))
+    counters[rows] += 1
+    return torch.from_numpy(uniform(drawn, n))

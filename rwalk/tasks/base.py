@@ -23,6 +23,7 @@ from torch import Tensor
 from rwalk import rng
 from rwalk.config import EnvConfig
 from rwalk.constants import OBS_DIM, OBS_POS
+from rwalk.randomization import PHYSICS_PARAMS
 from rwalk.rewards import RewardTerm, spec_terms
 
 if TYPE_CHECKING:
@@ -49,6 +50,9 @@ COMMON_PIECES: dict[str, ObsPiece] = {
     "command": ObsPiece(
         1, lambda task: task.target.unsqueeze(-1),
         "the episode's target velocity (m/s; config.command_range)"),
+    "physics": ObsPiece(
+        len(PHYSICS_PARAMS), lambda task: task.core.perturb.normalised_params(),
+        "privileged: the env's randomised physics, centred and scaled (rwalk.randomization)"),
 }  # fmt: skip
 #: Random stream of the per-episode velocity commands (see ``rwalk.rng``).
 COMMAND_STREAM = "command"
@@ -95,6 +99,13 @@ class Task:
         commanded = self.core.config.command_range is not None
         return ("phase", "lateral_offset", *(("command",) if commanded else ()))
 
+    def privileged(self) -> tuple[str, ...]:
+        """Pieces only a critic sees, offered when the config varies the world
+        (randomised physics, pushes or noise): the env's physics."""
+        cfg = self.core.config
+        varied = (cfg.randomization, cfg.pushes, cfg.observation_noise)
+        return ("physics",) if any(v is not None for v in varied) else ()
+
     def reward_terms(self) -> tuple[RewardTerm, ...]:
         """The reward's terms, in the order they are added and reported."""
         return spec_terms(self.core.config.reward_weights)
@@ -132,12 +143,7 @@ class Task:
     def uniform(self, rows: Tensor, stream: str, counters: Tensor, n: int) -> Tensor:
         """n uniform [0, 1) numbers per env of ``rows`` from env i's key (seed + i,
         ``stream``, counters[i]); each counter then moves on by one. Shape: (M, n) float64."""
-        ids = rows.numpy().astype(np.uint64)
-        keys = rng.keys(
-            np.uint64(self.core.seed_value) + ids, stream, counters[rows].numpy().astype(np.uint64)
-        )
-        counters[rows] += 1
-        return torch.from_numpy(rng.uniform(keys, n))
+        return rng.uniform_rows(self.core.seed_value, rows, stream, counters, n)
 
     def act(self, action: Tensor) -> tuple[np.ndarray, Tensor]:
         """Servo targets for the next ``core.decimation`` substeps, and advance the gait.

@@ -20,8 +20,11 @@ class RslRlVecEnv(VecEnv):
     ``policy`` and ``critic``, from the task's named pieces: ``observation``
     (the spec's: 65 values, 69 for adaptive_gait), ``phase`` (2, sin/cos of the
     gait phase), ``lateral_offset`` (1, y - y0), and any other piece of the task
-    (``command``, ``gait``, ``sensors``). None takes the observation and every
-    extra piece of the task.
+    (``command``, ``gait``, ``sensors``, ``physics``, ``heights``). None takes the
+    observation and every extra piece of the task, and for the critic also the
+    task's privileged pieces (``Task.privileged``: the randomised physics and the
+    ground around the feet, when the config varies the world). The policy group
+    carries ``EnvConfig.observation_noise``; the critic's is exact.
 
     ``extras["log"]`` (means over the episodes that ended this step):
     ``Episode_Reward/<term>`` (per-step mean of each reward term),
@@ -46,7 +49,7 @@ class RslRlVecEnv(VecEnv):
     ) -> None:
         every = ("observation", *env.core.task.extras())
         policy_obs = every if policy_obs is None else policy_obs
-        critic_obs = every if critic_obs is None else critic_obs
+        critic_obs = (*every, *env.core.task.privileged()) if critic_obs is None else critic_obs
         for name in (*policy_obs, *critic_obs):
             env.core.piece_size(name)  # raises ValueError naming an unknown piece
         if not reward_scale > 0:
@@ -76,11 +79,13 @@ class RslRlVecEnv(VecEnv):
     def get_observations(self) -> TensorDict:
         core = self.core
         pieces = {name: core.piece(name) for names in self.groups.values() for name in names}
+        noisy = core.perturb.noisy
+        groups = {
+            "policy": [noisy(name, pieces[name]) for name in self.groups["policy"]],
+            "critic": [pieces[name] for name in self.groups["critic"]],
+        }
         return TensorDict(
-            {
-                group: torch.cat([pieces[name] for name in names], dim=-1).to(torch.float32)
-                for group, names in self.groups.items()
-            },
+            {group: torch.cat(parts, dim=-1).to(torch.float32) for group, parts in groups.items()},
             batch_size=[self.num_envs],
         )
 
