@@ -213,6 +213,8 @@ PHYSICS_PARAMS: tuple[tuple[str, float, float], ...] = (
     ("armature_scale", 1.0, 0.2),
     ("latency", 1.0, 1.0),
 )
+#: The model's own values of PHYSICS_PARAMS.
+NOMINAL_PARAMS = (NOMINAL_FRICTION, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0)
 _CENTRE = torch.tensor([c for _, c, _ in PHYSICS_PARAMS], dtype=torch.float64)
 _SPREAD = torch.tensor([s for _, _, s in PHYSICS_PARAMS], dtype=torch.float64)
 
@@ -236,10 +238,7 @@ class Perturbations:
         self.noise: ObservationNoise | None = cfg.observation_noise
         n, k = core.num_envs, core.decimation
         model = core.model
-        nominal = [
-            NOMINAL_FRICTION, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0
-        ]  # fmt: skip
-        self.params = torch.tensor(nominal, dtype=torch.float64).repeat(n, 1)
+        self.params = _CENTRE.new_tensor(NOMINAL_PARAMS).repeat(n, 1)
         """Each env's physics, in PHYSICS_PARAMS order (raw values). Shape: (N, 9)."""
         self.physics_draws = torch.zeros(n, dtype=torch.long)
         self.push_draws = torch.zeros(n, dtype=torch.long)
@@ -288,10 +287,6 @@ class Perturbations:
         from its end). Shape: (N, K, 12)."""
         self._generator = torch.Generator()
         self._noise_cache: dict[str, Tensor] = {}
-
-    @property
-    def active(self) -> bool:
-        return self.randomization is not None or self.pushes is not None
 
     def seed(self, seed: int) -> None:
         """Restart the draws (the core was reseeded)."""
@@ -418,21 +413,19 @@ class Perturbations:
         return value + noise
 
     def _scales(self, name: str, width: int) -> Tensor | None:
-        task = self.core.task
+        """Noise half-width of each value of the piece ``name``; None for an exact piece."""
         if name == "observation":
-            parts = [self._scales(piece, task.pieces()[piece].size) for piece in task.observation]
-            sizes = [task.pieces()[piece].size for piece in task.observation]
-            if all(part is None for part in parts):
-                return None
-            return torch.cat(
-                [
-                    torch.zeros(s, dtype=torch.float64) if p is None else p
-                    for p, s in zip(parts, sizes)
-                ]
-            )
+            pieces = self.core.task.pieces()
+            parts = [
+                self._scales(piece, pieces[piece].size) for piece in self.core.task.observation
+            ]
+            sizes = [pieces[piece].size for piece in self.core.task.observation]
+            zeros = [torch.zeros(size, dtype=torch.float64) for size in sizes]
+            scales = torch.cat([z if p is None else p for p, z in zip(parts, zeros, strict=True)])
+            return scales if bool(scales.any()) else None
         if name == "sensors":
             return self.noise.sensor_scales()
-        scale = getattr(self.noise, name, 0.0) if name in _NOISE_PIECES else 0.0
+        scale = getattr(self.noise, name) if name in _NOISE_PIECES else 0.0
         return torch.full((width,), float(scale), dtype=torch.float64) if scale > 0 else None
 
     def state(self) -> dict[str, Tensor]:
