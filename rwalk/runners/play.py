@@ -118,7 +118,7 @@ def load_policy(checkpoint: Path, env: ResidualWalkVecEnv):
 
     check_checkpoint(checkpoint)
     saved = saved_args(checkpoint)
-    args = Args(**{k: tuple(v) if isinstance(v, list) else v for k, v in saved.items()})
+    args = Args.from_saved(saved)
     if args.task != env.core.task.name:
         raise ValueError(
             f"checkpoint {str(checkpoint)!r} is a {args.task!r} policy; the env runs "
@@ -129,7 +129,9 @@ def load_policy(checkpoint: Path, env: ResidualWalkVecEnv):
         name for name in ("observation", *env.core.task.extras())
         if name != "command" or args.command_range
     )  # fmt: skip
-    adapter = RslRlVecEnv(env, policy_obs=pieces, critic_obs=pieces, reward_scale=args.reward_scale)
+    # A robust run's critic also read the privileged pieces (the policy never does).
+    critic = (*pieces, *PRIVILEGED_PIECES) if args.robust else pieces
+    adapter = RslRlVecEnv(env, policy_obs=pieces, critic_obs=critic, reward_scale=args.reward_scale)
     with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the whole architecture
         runner = SafeRunner(adapter, rsl_rl_config(args), log_dir=None, device="cpu")
     runner.load(str(checkpoint))

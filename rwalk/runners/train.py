@@ -96,10 +96,16 @@ class Args:
             "TensorBoard event files"
         },
     )
-    terrain_scale: float = field(default=1.0, metadata={"help": "final terrain roughness 0..1"})
-    curriculum_iterations: int = field(
-        default=0,
-        metadata={"help": "ramp the roughness from 0 to --terrain-scale over these iterations"},
+    robust: bool = field(
+        default=True,
+        metadata={
+            "help": "train for worlds never seen: per-env terrain levels with their curriculum, "
+            "randomised physics, pushes, observation noise and a privileged critic "
+            "(--no-robust: one rough world at --terrain-scale, as before)"
+        },
+    )
+    terrain_scale: float = field(
+        default=1.0, metadata={"help": "--no-robust: roughness of the one rough world, 0..1"}
     )
     save_interval: int = field(
         default=25,
@@ -158,7 +164,7 @@ class Args:
             "num_learning_epochs",
             "num_mini_batches",
         )
-        require_at_least(self, 0, "curriculum_iterations", "settle_steps", "threads", "seed")
+        require_at_least(self, 0, "settle_steps", "threads", "seed")
         require_positive(self, "reward_scale", "learning_rate", "init_noise_std")
         require_positive(self, "max_minutes", finite=False)
         require_at_least(self, 0, "entropy_coef")
@@ -177,17 +183,26 @@ class Args:
             raise ValueError(f"--hidden-dims must be sizes >= 1, got {self.hidden_dims}")
 
 
+    @classmethod
+    def from_saved(cls, saved: dict) -> Args:
+        """The flags of a run's config.json (``"args"``): flags this version no longer has
+        are dropped, and a run saved before ``robust`` existed trained without it."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        values = {"robust": False} | {k: v for k, v in saved.items() if k in known}
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
+
+
 def parse_args(argv: list[str] | None = None) -> Args:
     return parse_dataclass(Args, argv, __doc__, prog=PROG)
 
 
 def env_config(args: Args) -> EnvConfig:
     """The training env: rough world, starts spread over the terrain, pooled settling."""
-    start_scale = 0.0 if args.curriculum_iterations > 0 else args.terrain_scale
     return presets.training_config(
         args.task,
         num_envs=args.num_envs,
-        terrain_scale=start_scale,
+        robust=args.robust,
+        terrain_scale=args.terrain_scale,
         settle_steps=args.settle_steps,
         settle_pool_fraction=args.settle_pool_fraction,
         settle_reuse=args.settle_reuse,
@@ -246,13 +261,6 @@ def start_as_base_gait(runner) -> None:
     with torch.no_grad():
         last.weight.zero_()
         last.bias.zero_()
-
-
-def terrain_at(args: Args, iteration: int) -> float:
-    """Terrain roughness for an iteration (linear ramp over curriculum_iterations)."""
-    if args.curriculum_iterations <= 0:
-        return args.terrain_scale
-    return args.terrain_scale * min(1.0, iteration / args.curriculum_iterations)
 
 
 def resume_point(args: Args) -> tuple[Path, int] | None:
@@ -348,9 +356,6 @@ def train(args: Args) -> Path:
             # One learn() call up to the next checkpoint: rsl-rl saves the multiples of
             # save_interval in its loop and the call's last iteration after it.
             last = min(-(-it // args.save_interval) * args.save_interval, args.max_iterations - 1)
-            scale = terrain_at(args, it)
-            if scale != env.core.terrain.scale:
-                env.env.set_terrain_scale(scale)
             runner.learn(num_learning_iterations=last + 1 - it, init_at_random_ep_len=it == first)
             runner.logger.writer.close()  # learn() opens a new writer each call
             checkpoint = log_dir / f"model_{last}.pt"
@@ -363,7 +368,7 @@ def train(args: Args) -> Path:
             eta = min(left * per_iteration, max(budget - elapsed, 0.0))
             print(
                 f"[rwalk] iteration {last + 1}/{args.max_iterations}, "
-                f"{elapsed / 60:.1f} min elapsed, terrain {scale:.2f}, ETA {eta / 60:.1f} min, "
+                f"{elapsed / 60:.1f} min elapsed, ETA {eta / 60:.1f} min, "
                 f"checkpoint {checkpoint}",
                 flush=True,
             )

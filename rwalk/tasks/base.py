@@ -22,7 +22,7 @@ from torch import Tensor
 
 from rwalk import rng
 from rwalk.config import EnvConfig
-from rwalk.constants import OBS_DIM, OBS_POS
+from rwalk.constants import OBS_DIM, OBS_FOOT_POS, OBS_POS, OBS_QUAT
 from rwalk.randomization import PHYSICS_PARAMS
 from rwalk.rewards import RewardTerm, spec_terms
 
@@ -39,6 +39,43 @@ class ObsPiece(NamedTuple):
     doc: str
 
 
+#: Ground samples around each foot for the privileged critic, in world axes: under the
+#: foot, and 3 cm ahead, behind, left and right of it. Metres.
+HEIGHT_OFFSETS = ((0.0, 0.0), (0.03, 0.0), (-0.03, 0.0), (0.0, 0.03), (0.0, -0.03))
+#: Pieces a critic may add to the policy's: the world the actor cannot see.
+PRIVILEGED_PIECES = ("physics", "heights")
+
+
+def foot_clearances(core: Core) -> Tensor:
+    """Height of each foot above the ground at HEIGHT_OFFSETS around it, foot-major.
+
+    The feet's world positions come from the torso's position and orientation and the
+    feet's positions in the torso frame (the observation's sensors), with elementwise
+    products and sums only. Shape: (N, 4 * len(HEIGHT_OFFSETS)) float64. Metres.
+    """
+    obs = core.obs
+    n = obs.shape[0]
+    w, x, y, z = obs[:, OBS_QUAT].unbind(-1)
+    rotation = (
+        (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)),
+        (2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)),
+        (2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)),
+    )
+    local = obs[:, OBS_FOOT_POS].view(n, 4, 3)
+    world = [
+        obs[:, OBS_POS.start + i, None]
+        + row[0][:, None] * local[..., 0]
+        + row[1][:, None] * local[..., 1]
+        + row[2][:, None] * local[..., 2]
+        for i, row in enumerate(rotation)
+    ]  # each (N, 4)
+    offsets = torch.tensor(HEIGHT_OFFSETS, dtype=torch.float64)
+    ground = core.terrain.heights_at(
+        world[0][..., None] + offsets[:, 0], world[1][..., None] + offsets[:, 1]
+    )
+    return (world[2][..., None] - ground).reshape(n, -1)
+
+
 #: Pieces every task has. ``sensors`` is the spec's 65-D observation.
 COMMON_PIECES: dict[str, ObsPiece] = {
     "sensors": ObsPiece(OBS_DIM, lambda task: task.core.obs,
@@ -53,6 +90,9 @@ COMMON_PIECES: dict[str, ObsPiece] = {
     "physics": ObsPiece(
         len(PHYSICS_PARAMS), lambda task: task.core.perturb.normalised_params(),
         "privileged: the env's randomised physics, centred and scaled (rwalk.randomization)"),
+    "heights": ObsPiece(
+        4 * len(HEIGHT_OFFSETS), lambda task: foot_clearances(task.core),
+        "privileged: each foot's height above the ground under it and 3 cm around it (m)"),
 }  # fmt: skip
 #: Random stream of the per-episode velocity commands (see ``rwalk.rng``).
 COMMAND_STREAM = "command"
@@ -100,11 +140,11 @@ class Task:
         return ("phase", "lateral_offset", *(("command",) if commanded else ()))
 
     def privileged(self) -> tuple[str, ...]:
-        """Pieces only a critic sees, offered when the config varies the world
-        (randomised physics, pushes or noise): the env's physics."""
+        """Pieces only a critic sees (PRIVILEGED_PIECES), offered when the config varies
+        the world: randomised physics, pushes, noise or terrain levels."""
         cfg = self.core.config
-        varied = (cfg.randomization, cfg.pushes, cfg.observation_noise)
-        return ("physics",) if any(v is not None for v in varied) else ()
+        varied = (cfg.randomization, cfg.pushes, cfg.observation_noise, cfg.terrain_levels)
+        return PRIVILEGED_PIECES if any(v is not None for v in varied) else ()
 
     def reward_terms(self) -> tuple[RewardTerm, ...]:
         """The reward's terms, in the order they are added and reported."""

@@ -1,0 +1,208 @@
+"""Per-env physics, pushes, latency and observation noise (rwalk.randomization)."""
+
+from __future__ import annotations
+
+import math
+import pickle
+
+import numpy as np
+import pytest
+import torch
+
+from rwalk import EnvConfig
+from rwalk.constants import FOOT_GEOMS, GROUND_GEOM, JOINT_NAMES, OBS_CONTACT, TORSO_BODY
+from rwalk.core import Core
+from rwalk.randomization import (
+    NOMINAL_PARAMS,
+    ObservationNoise,
+    Pushes,
+    Randomization,
+)
+
+FAST = dict(settle_steps=10, model_path="model/world_flat.xml")
+
+
+def core(n=4, seed=0, **kw):
+    c = Core(EnvConfig(**(FAST | kw)), n, seed=seed)
+    c.reset()
+    return c
+
+
+@pytest.mark.parametrize(
+    "make, field",
+    [
+        (lambda: Randomization(friction=(1.0, 0.5)), "friction has min > max"),
+        (lambda: Randomization(friction=(-0.1, 0.5)), "friction must not be negative"),
+        (lambda: Randomization(kp_scale=(0.0, 1.0)), "kp_scale must be > 0"),
+        (lambda: Randomization(force_scale=(-1.0, 1.0)), "force_scale must be > 0"),
+        (lambda: Randomization(damping_scale=(-0.5, 1.0)), "damping_scale must not be negative"),
+        (lambda: Randomization(latency=(0.5, 1)), "latency must be a pair of integers"),
+        (lambda: Randomization(payload=(0.1, float("nan"))), "payload must be a pair"),
+        (lambda: Pushes(interval=(0.0, 1.0)), "Pushes.interval must be > 0"),
+        (lambda: Pushes(speed=(-0.1, 0.1)), "Pushes.speed must not be negative"),
+        (lambda: Pushes(speed=(0.2, 0.1)), "Pushes.speed has min > max"),
+        (lambda: ObservationNoise(joint_vel=-0.1), "ObservationNoise.joint_vel must be a scale"),
+        (lambda: EnvConfig(pushes=(1.0, 2.0)), "EnvConfig.pushes must be a Pushes"),
+    ],
+)
+def test_bad_ranges_name_the_field(make, field):
+    with pytest.raises((ValueError, TypeError), match=field.replace("(", r"\(")):
+        make()
+
+
+def test_payload_and_latency_checked_against_the_robot():
+    with pytest.raises(ValueError, match=r"payload \(-0.6, 0.0\) leaves the torso"):
+        Core(EnvConfig(**FAST, randomization=Randomization(payload=(-0.6, 0.0))), 1)
+    with pytest.raises(ValueError, match="latency .* exceeds one control period"):
+        Core(EnvConfig(**FAST, randomization=Randomization(latency=(0, 6))), 1)
+
+
+def test_drawn_physics_reach_each_simulation():
+    c = core(n=3, seed=5, randomization=Randomization())
+    model = c.model
+    torso = model.body(TORSO_BODY).id
+    dofs = [int(model.joint(name).dofadr[0]) for name in JOINT_NAMES]
+    rand = Randomization()
+    for i in range(3):
+        friction, payload, cx, cy, kp, force, damping, armature, latency = c.perturb.params[i]
+        for low_high, value in zip(
+            (rand.friction, rand.payload, rand.com_offset, rand.com_offset, rand.kp_scale,
+             rand.force_scale, rand.damping_scale, rand.armature_scale),
+            (friction, payload, cx, cy, kp, force, damping, armature),
+            strict=True,
+        ):  # fmt: skip
+            assert low_high[0] <= float(value) <= low_high[1]
+        assert rand.latency[0] <= int(latency) <= rand.latency[1]
+        assert int(c.perturb.latency[i]) == int(latency)
+        sim = c.sim.batch.get_model(i)
+        for geom in (GROUND_GEOM, *FOOT_GEOMS):
+            assert sim.geom(geom).friction[0] == float(friction)
+        assert sim.body_mass[torso] == model.body_mass[torso] + float(payload)
+        assert sim.body_ipos[torso, 0] == model.body_ipos[torso, 0] + float(cx)
+        assert sim.body_ipos[torso, 1] == model.body_ipos[torso, 1] + float(cy)
+        assert np.array_equal(sim.actuator_gainprm[:, 0], model.actuator_gainprm[:, 0] * float(kp))
+        assert np.array_equal(sim.actuator_biasprm[:, 1], model.actuator_biasprm[:, 1] * float(kp))
+        assert np.array_equal(sim.actuator_forcerange, model.actuator_forcerange * float(force))
+        assert np.array_equal(sim.dof_damping[dofs], model.dof_damping[dofs] * float(damping))
+        assert np.array_equal(sim.dof_armature[dofs], model.dof_armature[dofs] * float(armature))
+        # set_const followed the mass: the subtree mass of the world holds the payload
+        assert sim.body_subtreemass[0] == pytest.approx(model.body_subtreemass[0] + float(payload))
+    assert len({tuple(p.tolist()) for p in c.perturb.params}) == 3  # each env its own
+
+
+def test_fixed_values_and_a_new_draw_at_each_reset():
+    c = core(n=2, randomization=Randomization.nominal(friction=(0.3, 0.3), payload=(0.2, 0.2)))
+    expected = torch.tensor(NOMINAL_PARAMS, dtype=torch.float64)
+    expected[0], expected[1] = 0.3, 0.2
+    assert torch.equal(c.perturb.params, expected.repeat(2, 1))
+    r = core(n=2, randomization=Randomization())
+    before = r.perturb.params.clone()
+    r.reset(np.array([1]))
+    assert torch.equal(r.perturb.params[0], before[0])
+    assert not torch.equal(r.perturb.params[1], before[1])
+
+
+def test_nominal_randomization_changes_no_bit():
+    plain = core(n=2, seed=3)
+    nominal = core(n=2, seed=3, randomization=Randomization.nominal())
+    for _ in range(20):
+        a = torch.rand(2, 12, generator=torch.Generator().manual_seed(_)) * 2 - 1
+        assert torch.equal(plain.step(a).obs, nominal.step(a).obs)
+
+
+def test_env_i_draws_like_a_batch_seeded_s_plus_i_at_any_thread_count():
+    kw = dict(randomization=Randomization(), pushes=Pushes(interval=(0.05, 0.1)))
+    batch = core(n=4, seed=10, num_threads=2, **kw)
+    alone = core(n=1, seed=12, num_threads=1, **kw)
+    assert torch.equal(batch.perturb.params[2], alone.perturb.params[0])
+    other = core(n=4, seed=10, num_threads=1, **kw)
+    zeros = torch.zeros(4, 12)
+    for _ in range(15):
+        assert torch.equal(batch.step(zeros).obs, other.step(zeros).obs)
+        alone.step(torch.zeros(1, 12))
+    assert batch.perturb.pushes_done > 0
+    assert torch.equal(batch.obs[2], alone.obs[0])
+
+
+def test_latency_delays_the_targets_by_whole_substeps():
+    c = core(n=3, randomization=Randomization.nominal(latency=(0, 5)))
+    c.perturb.latency[:] = torch.tensor([0, 2, 5])
+    k = c.decimation
+    previous = np.arange(3 * k * 12, dtype=np.float64).reshape(3, k, 12)
+    current = -previous - 1.0
+    c.perturb.delay(previous)  # held: this period's targets
+    applied = c.perturb.delay(current)
+    assert np.array_equal(applied[0], current[0])
+    assert np.array_equal(applied[1], np.concatenate((previous[1, k - 2 :], current[1, : k - 2])))
+    assert np.array_equal(applied[2], previous[2])
+
+
+def test_a_push_changes_the_torso_velocity_by_the_drawn_kick():
+    speed = 0.2
+    c = core(n=3, pushes=Pushes(speed=(speed, speed), interval=(0.02, 0.02)))
+    before = np.array(c.sim.qvel[:, :2])
+    kick = c.perturb.kick.clone()
+    c.perturb.before_step()  # every env is due: one control step per interval
+    assert np.array_equal(c.sim.qvel[:, :2], before + kick.numpy())
+    assert torch.allclose(kick.norm(dim=-1), torch.full((3,), speed, dtype=torch.float64))
+    assert c.perturb.pushes_done == 3
+    assert not torch.equal(c.perturb.kick, kick)  # the next kick is a new draw
+
+
+def test_pushes_at_their_interval():
+    c = core(n=2, pushes=Pushes(speed=(0.1, 0.1), interval=(0.1, 0.1)))  # every 5 steps
+    for _ in range(20):
+        c.step(torch.zeros(2, 12))
+    assert c.perturb.pushes_done == 2 * 4
+
+
+def test_noise_on_the_policy_group_only():
+    from rwalk import ResidualWalkVecEnv
+    from rwalk.wrappers import RslRlVecEnv
+
+    noise = ObservationNoise()
+    cfg = EnvConfig(**FAST, observation_noise=noise, randomization=Randomization())
+    env = RslRlVecEnv(ResidualWalkVecEnv(3, cfg, seed=1))
+    assert env.groups["critic"] == ("observation", "phase", "lateral_offset", "physics")
+    obs = env.get_observations()
+    exact = env.core.piece("observation").float()
+    policy, critic = obs["policy"], obs["critic"]
+    assert torch.equal(critic[:, :65], exact)
+    difference = (policy[:, :65] - exact).abs()
+    scales = noise.sensor_scales().float()
+    assert bool((difference <= scales + 1e-6).all()) and bool(difference.any())
+    assert torch.equal(policy[:, OBS_CONTACT], exact[:, OBS_CONTACT])
+    assert torch.equal(env.get_observations()["policy"], policy)  # one draw per step
+    env.step(torch.zeros(3, 12))
+    assert not torch.equal(env.get_observations()["policy"][:, :7], policy[:, :7])
+    again = RslRlVecEnv(ResidualWalkVecEnv(3, cfg, seed=1)).get_observations()
+    assert torch.equal(again["policy"], policy)  # the seed fixes the noise
+
+
+def test_physics_piece_is_centred_and_scaled():
+    c = core(n=1, randomization=Randomization.nominal(friction=(0.5, 0.5), latency=(2, 2)))
+    piece = c.piece("physics")[0]
+    assert piece[0].item() == pytest.approx((0.5 - 0.9) / 0.4)
+    assert piece[8].item() == pytest.approx(1.0)
+    assert piece[4].item() == 0.0
+
+
+def test_pickled_core_continues_identically():
+    c = core(n=2, randomization=Randomization(), pushes=Pushes(interval=(0.05, 0.2)))
+    copy = pickle.loads(pickle.dumps(c))
+    assert torch.equal(copy.perturb.params, c.perturb.params)
+    for _ in range(10):
+        assert torch.equal(c.step(torch.zeros(2, 12)).obs, copy.step(torch.zeros(2, 12)).obs)
+
+
+def test_terrain_scale_refused_with_per_env_physics():
+    c = Core(EnvConfig(settle_steps=0, randomization=Randomization()), 1)
+    with pytest.raises(ValueError, match="set_terrain_scale cannot change the ground"):
+        c.set_terrain_scale(0.5)
+
+
+def test_kick_direction_is_uniform_on_the_circle():
+    c = core(n=400, pushes=Pushes(speed=(1.0, 1.0)))
+    angle = torch.atan2(c.perturb.kick[:, 1], c.perturb.kick[:, 0])
+    quadrants = torch.histc(angle, bins=4, min=-math.pi, max=math.pi)
+    assert bool((quadrants > 60).all())
