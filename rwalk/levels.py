@@ -100,7 +100,9 @@ class TerrainLevels:
             )
         unknown = [kind for kind in self.kinds if kind not in KNOWN_KINDS]
         if unknown:
-            raise ValueError(f"kinds: unknown kind {unknown[0]!r} (known: {KNOWN_KINDS})")
+            raise ValueError(
+                f"kinds {self.kinds!r}: unknown kind {unknown[0]!r} (known: {KNOWN_KINDS})"
+            )
         if len(set(self.kinds)) != len(self.kinds):
             raise ValueError(f"kinds must not repeat a kind, got {self.kinds!r}")
         for name in ("tile_length", "tile_width", "pad_length", "cell", "taper"):
@@ -200,7 +202,7 @@ class TerrainMap:
         if levels.shape != kinds.shape:
             raise ValueError(f"levels {levels.shape} and kinds {kinds.shape} differ in shape")
         if levels.size and (levels.min() < 0 or levels.max() >= cfg.levels):
-            bad = levels[(levels < 0) | (levels >= cfg.levels)][0]
+            bad = levels[(levels < 0) | (levels >= cfg.levels)][0].item()
             raise ValueError(
                 f"level {bad!r} is a terrain level outside the map (levels 0..{cfg.levels - 1})"
             )
@@ -212,7 +214,7 @@ class TerrainMap:
     def _check_kinds(self, kinds: np.ndarray) -> None:
         count = len(self.config.kinds)
         if kinds.size and (kinds.min() < 0 or kinds.max() >= count):
-            bad = kinds[(kinds < 0) | (kinds >= count)][0]
+            bad = kinds[(kinds < 0) | (kinds >= count)][0].item()
             raise ValueError(f"kind index {bad!r} outside 0..{count - 1} ({self.config.kinds})")
 
 
@@ -229,6 +231,7 @@ def tile_heights(cfg: TerrainLevels, level: int, kind: str) -> np.ndarray:
     x = np.arange(cols) * cfg.cell
     y = np.arange(rows) * cfg.cell
     s = x - cfg.pad_length  # distance past the pad
+    on_pad = np.arange(cols) <= math.floor(cfg.pad_length / cfg.cell + 1e-9)
     run = cfg.tile_length - cfg.pad_length
     if kind == "rough":
         seed = np.random.SeedSequence([cfg.seed, level, KNOWN_KINDS.index(kind)])
@@ -245,17 +248,16 @@ def tile_heights(cfg: TerrainLevels, level: int, kind: str) -> np.ndarray:
         stone = max(1, round(cfg.stone_size / cfg.cell))
         gap = round(d * cfg.stone_gap / cfg.cell)
         period = stone + gap
-        past_pad = np.maximum(np.arange(cols) - int(np.sum(s <= 0)), 0)
+        past_pad = np.maximum(np.arange(cols) - int(on_pad.sum()), 0)  # 0: first stone
         in_gap = (past_pad[None, :] % period >= stone) | (
             np.arange(rows)[:, None] % period >= stone
         )
-        in_gap &= (s > 0)[None, :]
         profile = np.where(in_gap, -cfg.gap_depth, 0.0)
     edge = np.minimum(
         np.minimum(s, cfg.tile_length - x)[None, :], np.minimum(y, cfg.tile_width - y)[:, None]
     )
     blend = np.clip(edge / cfg.taper, 0.0, 1.0)
-    heights = np.where(s[None, :] <= 0, 0.0, profile * blend)
+    heights = np.where(on_pad[None, :], 0.0, profile * blend)
     return heights + 0.0  # no negative zeros
 
 
