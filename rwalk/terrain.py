@@ -18,6 +18,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+import torch
 
 from rwalk.constants import GROUND_GEOM
 
@@ -163,3 +164,32 @@ class Terrain:
         rr = np.clip(np.floor(row)[:, None, None] + dr[None, :, None], 0, rows - 1).astype(int)
         top = self.heights[rr, cc].reshape(len(x), -1).max(axis=1)
         return self.origin[2] + sz * top
+
+    def heights_at(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """Ground height under each (x, y): bilinear between the heightfield's samples.
+
+        Shape: any, same as ``y`` -> the same, float64. Metres, world frame. Points beyond the
+        map read its edge; a plane reads its height everywhere. Only elementwise torch ops
+        (no fused multiply-add), so the result is the same bit for bit on any CPU, and equals
+        the stored sample exactly at a grid point whose column and row come out whole.
+        """
+        x = torch.as_tensor(x, dtype=torch.float64)
+        y = torch.as_tensor(y, dtype=torch.float64)
+        if not self.is_heightfield:
+            return torch.full(torch.broadcast_shapes(x.shape, y.shape), float(self.origin[2]))
+        heights = torch.from_numpy(self.heights)
+        rows, cols = heights.shape
+        sx, sy, sz = (float(v) for v in self.size[:3])
+        col = (x - (float(self.origin[0]) - sx)) / (2 * sx) * (cols - 1)
+        row = (y - (float(self.origin[1]) - sy)) / (2 * sy) * (rows - 1)
+        col = torch.clamp(col, 0.0, float(cols - 1))
+        row = torch.clamp(row, 0.0, float(rows - 1))
+        c0 = torch.clamp(torch.floor(col), max=float(cols - 2))
+        r0 = torch.clamp(torch.floor(row), max=float(rows - 2))
+        fx, fy = col - c0, row - r0
+        c0, r0 = c0.long(), r0.long()
+        h00, h01 = heights[r0, c0], heights[r0, c0 + 1]
+        h10, h11 = heights[r0 + 1, c0], heights[r0 + 1, c0 + 1]
+        low = h00 * (1.0 - fx) + h01 * fx
+        high = h10 * (1.0 - fx) + h11 * fx
+        return float(self.origin[2]) + sz * (low * (1.0 - fy) + high * fy)
