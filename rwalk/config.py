@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, field, fields
 
 from rwalk.gait import GaitParameters
+from rwalk.levels import TerrainLevels
 from rwalk.physics import Physics
 from rwalk.randomization import ObservationNoise, Pushes, Randomization
 from rwalk.rewards import RewardWeights
@@ -77,6 +78,11 @@ class EnvConfig:
     """Random horizontal kicks to the torso; None: no kicks."""
     observation_noise: ObservationNoise | None = None
     """Noise on the policy's observation group (never the critic's); None: exact."""
+    terrain_levels: TerrainLevels | None = None
+    """A map of terrain levels in the world's heightfield (``rwalk.levels``): each env
+    starts on the pad of its own tile (its kind, at its level; ``position_noise``
+    spreads it there) and, with the map's curriculum, moves between levels at its
+    resets. None: the world's own heightfield at ``terrain_scale``."""
 
     def __post_init__(self) -> None:
         def bad(name: str, why: str) -> ValueError:
@@ -85,7 +91,7 @@ class EnvConfig:
         kinds = (("gait", GaitParameters), ("reward_weights", RewardWeights), ("physics", Physics))
         optional = (
             ("randomization", Randomization), ("pushes", Pushes),
-            ("observation_noise", ObservationNoise),
+            ("observation_noise", ObservationNoise), ("terrain_levels", TerrainLevels),
         )  # fmt: skip
         for name, kind in kinds + optional:
             if (name, kind) in optional and getattr(self, name) is None:
@@ -136,6 +142,8 @@ class EnvConfig:
             raise bad("control_dt", "must be a number of seconds > 0")
         if not 0.0 <= self.terrain_scale <= 1.0:
             raise bad("terrain_scale", "must be in [0, 1]")
+        if self.terrain_levels is not None and self.terrain_scale != 1.0:
+            raise bad("terrain_scale", "must be 1.0 with terrain_levels (each level sets its own)")
         if min(self.position_noise) < 0 or self.yaw_noise < 0 or self.tilt_noise < 0:
             raise ValueError("EnvConfig noise half-widths must be >= 0")
         if not isinstance(self.num_threads, int) or self.num_threads < 0:

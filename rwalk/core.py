@@ -55,6 +55,7 @@ from rwalk.constants import (
 )
 from rwalk.gait import BezierGaitController
 from rwalk.kinematics import LegGeometry
+from rwalk.levels import build_model, update_levels
 from rwalk.randomization import Perturbations
 from rwalk.rewards import StepState, evaluate, fallen, quat_to_rpy
 from rwalk.sim import BatchedSim
@@ -123,10 +124,14 @@ class Core:
             )
         self.config = config
         self.num_envs = num_envs
-        self.model = load_model(config.model_path)
+        levels = config.terrain_levels
+        if levels is None:
+            self.model, self.terrain_map = load_model(config.model_path), None
+        else:
+            self.model, self.terrain_map = build_model(config.model_path, levels)
         config.physics.apply(self.model)
         self.terrain = Terrain(self.model)
-        if self.terrain.is_heightfield:
+        if self.terrain.is_heightfield and levels is None:
             self.terrain.set_scale(self.model, config.terrain_scale)
         self.geometry = LegGeometry.from_model(self.model)
         self.dt = float(self.model.opt.timestep)
@@ -158,6 +163,17 @@ class Core:
         """Env steps actually taken in the current episode. Shape: (N,)."""
         self.y0 = torch.zeros(n, dtype=torch.float64)
         """Torso y at the episode's start. Shape: (N,)."""
+        self.x0 = torch.zeros(n, dtype=torch.float64)
+        """Torso x at the episode's start. Shape: (N,)."""
+        self.fell = torch.zeros(n, dtype=torch.bool)
+        """Whether the current (or just ended) episode terminated. Shape: (N,)."""
+        kinds = len(levels.kinds) if levels is not None else 1
+        self.terrain_level = torch.full(
+            (n,), levels.start_level if levels is not None else 0, dtype=torch.long
+        )
+        """Each env's terrain level (0 without terrain_levels). Shape: (N,)."""
+        self.terrain_kind = torch.arange(n, dtype=torch.long) % kinds
+        """Each env's kind of tile, an index into ``terrain_levels.kinds``. Shape: (N,)."""
         self.obs = torch.zeros(n, OBS_DIM, dtype=torch.float64)
         """Current sensor observation (the spec's 65 values). Shape: (N, 65)."""
         self.task: Task = task_type(self)
@@ -202,7 +218,7 @@ class Core:
     _REBUILT = (
         "model", "terrain", "geometry", "controller", "sim", "_sensors", "_settle_ctrl",
         "_stand_joints", "_pool", "settle_progress", "_single", "task", "terms",
-        "_settle_tail", "perturb",
+        "_settle_tail", "perturb", "terrain_map",
     )  # fmt: skip
 
     def __getstate__(self) -> dict:
@@ -299,6 +315,7 @@ class Core:
             return
         randomize = self.config.randomize if randomize is None else bool(randomize)
         rows = torch.from_numpy(ids.astype(np.int64))
+        self._move_levels(rows)
         self.perturb.reset(rows, self._settle_tail)  # before settling: settle in the env's world
         pool = self._pool
         if (
@@ -312,6 +329,11 @@ class Core:
             )
             self.sim.state[ids] = pool.sim.state[entries]
             self.obs[rows] = pool.obs[torch.from_numpy(entries)]
+            if self.terrain_map is not None:
+                # Pool starts settle on the pad of tile (0, 0); every pad is flat at height 0.
+                shift = self._origins(ids) - self._origins(None)
+                self.sim.qpos[ids, 0:2] += shift
+                self.obs[rows, OBS_POS.start : OBS_POS.start + 2] += torch.from_numpy(shift)
         else:
             self._settle_fresh(self.sim, ids, randomize)
             self.obs[rows] = _observation(self._sensors[rows])
@@ -319,7 +341,9 @@ class Core:
         self.task.draw_commands(rows)
         self.episode_step[rows] = 0
         self.walked_steps[rows] = 0
+        self.x0[rows] = self.obs[rows, OBS_POS.start]
         self.y0[rows] = self.obs[rows, OBS_POS.start + 1]
+        self.fell[rows] = False
         totals = (*self.episode_sums.values(), self.episode_distance, self.episode_speed_error)
         for total in totals:
             total[rows] = 0.0
@@ -352,6 +376,34 @@ class Core:
             f"{SETTLE_ATTEMPTS} attempts: the starts are too hard for the base gait "
             f"(randomize={randomize}, tilt_noise={cfg.tilt_noise}, yaw_noise={cfg.yaw_noise}, "
             f"position_noise={cfg.position_noise}, world {cfg.model_path}); reduce the noise"
+        )
+
+    def _origins(self, ids: np.ndarray | None) -> np.ndarray:
+        """Nominal start (x, y) of envs ``ids``: their tiles' pads on a terrain-levels map,
+        else ``config.start_position``; None: where the settled-start pool starts (the
+        pad of tile (0, 0)). Shape: (M, 2) or (2,). Metres."""
+        if self.terrain_map is None:
+            return np.asarray(self.config.start_position, dtype=np.float64)
+        if ids is None:
+            return np.asarray(self.terrain_map.origin(0, 0), dtype=np.float64)
+        return self.terrain_map.origins(
+            self.terrain_level[ids].numpy(), self.terrain_kind[ids].numpy()
+        )
+
+    def _move_levels(self, rows: Tensor) -> None:
+        """The terrain curriculum: envs of ``rows`` ending an episode move a level up
+        or down by how far they walked against the target (``rwalk.levels``)."""
+        levels = self.config.terrain_levels
+        if levels is None or not levels.curriculum:
+            return
+        rows = rows[self.walked_steps[rows] > 0]  # first resets end no episode
+        if rows.numel() == 0:
+            return
+        target = self.task.v_target
+        target = target[rows] if isinstance(target, Tensor) else target
+        expected = target * self.walked_steps[rows].to(torch.float64) * self.control_dt
+        self.terrain_level[rows] = update_levels(
+            self.terrain_level[rows], self.episode_distance[rows], expected, self.fell[rows], levels
         )
 
     def _ids(self, env_ids: np.ndarray | Tensor | None) -> np.ndarray:
@@ -395,8 +447,9 @@ class Core:
             )
         else:
             dx = dy = roll = pitch = yaw = np.zeros(m)
-        x = cfg.start_position[0] + dx
-        y = cfg.start_position[1] + dy
+        origin = self._origins(ids if sim is self.sim else None)
+        x = origin[..., 0] + dx
+        y = origin[..., 1] + dy
         ground = self.terrain.max_height(x, y, FOOTPRINT_RADIUS)
         foot_bottom = self.controller.stance_z - self.geometry.foot_radius
         z = ground + START_CLEARANCE - foot_bottom
@@ -483,6 +536,7 @@ class Core:
         # Left to right, so that the reward equals sum(terms.values()) to the last bit.
         reward = sum(terms.values(), torch.zeros_like(forward_velocity))
         terminated = fallen(rpy) | diverged
+        self.fell.copy_(terminated)
         truncated = (self.episode_step >= cfg.max_episode_steps) & ~terminated
         for name, term in terms.items():
             self.episode_sums[name] += term
@@ -560,6 +614,11 @@ class Core:
         Raises:
             ValueError: naming the world, if its ground is a plane.
         """
+        if self.terrain_map is not None:
+            raise ValueError(
+                "set_terrain_scale cannot change a terrain-levels map: each env's level "
+                "sets its ground (EnvConfig.terrain_levels)"
+            )
         if self.config.randomization is not None:
             raise ValueError(
                 "set_terrain_scale cannot change the ground of a core with per-env physics "
@@ -584,25 +643,32 @@ class Core:
         return self.task.phase_features()
 
     def piece(self, name: str) -> Tensor:
-        """A named observation piece of the task (``"observation"`` is the spec
-        observation). Shape: (N, size) float64.
+        """A named observation piece of the task: ``"observation"`` is the spec
+        observation, ``"observation_from_start"`` the same with the torso's x and y
+        taken from the episode's start (x0, y0), so that a policy cannot read where
+        on a map it is. Shape: (N, size) float64.
 
         Raises:
             ValueError: naming the piece and listing the task's pieces.
         """
         if name == "observation":
             return self.task.spec_observation()
+        if name == "observation_from_start":
+            obs = self.task.spec_observation().clone()
+            obs[:, OBS_POS.start] -= self.x0
+            obs[:, OBS_POS.start + 1] -= self.y0
+            return obs
         pieces = self.task.pieces()
         if name not in pieces:
             raise ValueError(
                 f"task {self.task.name!r} has no observation piece {name!r}; choose from "
-                f"{('observation', *pieces)}"
+                f"{('observation', 'observation_from_start', *pieces)}"
             )
         return pieces[name].read(self.task)
 
     def piece_size(self, name: str) -> int:
         """Width of the piece ``name`` (see ``piece``)."""
-        if name == "observation":
+        if name in ("observation", "observation_from_start"):
             return self.task.observation_dim
         pieces = self.task.pieces()
         if name not in pieces:

@@ -44,12 +44,17 @@ import torch
 from rwalk.constants import ACTION_DIM, OBS_DIM
 
 #: Size of each observation piece of the residual task (the names of ``RslRlVecEnv``'s groups).
-PIECE_SIZES = {"observation": OBS_DIM, "phase": 2, "lateral_offset": 1, "command": 1}
+PIECE_SIZES = {
+    "observation": OBS_DIM, "observation_from_start": OBS_DIM, "phase": 2,
+    "lateral_offset": 1, "command": 1,
+}  # fmt: skip
 #: What each piece holds.
 PIECE_CONTENT = {
     "observation": "the spec's 65-D observation (docs/environment.md)",
     "phase": "sin(2*pi*phase), cos(2*pi*phase) of the gait phase in [0, 1)",
     "lateral_offset": "torso y minus its value at the episode's start (m)",
+    "observation_from_start": "the spec observation with the torso's x, y minus their values "
+    "at the episode's start (info['start_position'])",
     "command": "the episode's target velocity (m/s), with EnvConfig.command_range",
 }
 #: The Gymnasium ``info`` key each scalar piece is read from.
@@ -95,6 +100,10 @@ def task_catalog(core) -> dict[str, tuple[int, str]]:
             else f"the task's spec observation: pieces {' + '.join(task.observation)}",
         )
     }
+    catalog["observation_from_start"] = (
+        task.observation_dim,
+        PIECE_CONTENT["observation_from_start"],
+    )
     catalog |= {name: (piece.size, piece.doc) for name, piece in task.pieces().items()}
     return catalog
 
@@ -108,8 +117,8 @@ def policy_input(
         obs: the Gymnasium env's observation: (65,) for ``ResidualWalkEnv``, (69,)
             for ``AdaptiveGaitEnv``.
         info: the ``info`` of the same ``reset``/``step`` (keys ``phase`` in [0, 1),
-            ``lateral_offset`` in m and ``target_velocity`` in m/s, where ``pieces``
-            need them).
+            ``lateral_offset`` in m, ``target_velocity`` in m/s and ``start_position``
+            (x0, y0) in m, where ``pieces`` need them).
         pieces: the export's layout (``policy.json``'s ``pieces`` names).
 
     Returns:
@@ -123,6 +132,15 @@ def policy_input(
         name = piece["name"]
         if name == "observation":
             parts.append(obs)
+            continue
+        if name == "observation_from_start":
+            if "start_position" not in info:
+                raise KeyError(
+                    f"info has no 'start_position' (keys: {sorted(info)}); the policy reads it"
+                )
+            local = obs.astype(np.float64)
+            local[0:2] -= np.asarray(info["start_position"], dtype=np.float64)
+            parts.append(local.astype(np.float32))
             continue
         key = INFO_KEYS[name]
         if key not in info:

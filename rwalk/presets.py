@@ -9,15 +9,19 @@ from __future__ import annotations
 import dataclasses
 
 from rwalk.config import EnvConfig
+from rwalk.levels import TerrainLevels
+from rwalk.randomization import ObservationNoise, Pushes, Randomization
 from rwalk.tasks import get_task
 
 __all__ = [
-    "BASE_GAIT_SPREAD", "START_SPREAD", "base_gait_config",
-    "evaluation_config", "get_task", "training_config",
+    "BASE_GAIT_SPREAD", "PAD_SPREAD", "START_SPREAD", "base_gait_config",
+    "evaluation_config", "get_task", "robust_parts", "training_config",
 ]  # fmt: skip
 
 #: Half-widths (x, y) of the start spread over the training terrain. Metres.
 START_SPREAD = (0.5, 1.2)
+#: Half-widths (x, y) of the start spread on a pad of the terrain-levels map (0.8 m x 1 m). Metres.
+PAD_SPREAD = (0.1, 0.1)
 #: The base-gait measurements' spread (wider in y: unsettled starts, no policy to
 #: keep off the terrain's edge within 1000 steps). The documented figures use it.
 BASE_GAIT_SPREAD = (0.5, 1.5)
@@ -35,17 +39,24 @@ def training_config(
     threads: int = 0,
     command_range: tuple[float, float] | None = None,
     start_spread: float = 0.5,
+    robust: bool = False,
 ) -> EnvConfig:
-    """The training env: rough world, starts spread over the terrain, pooled settling;
-    for adaptive_gait, starting parameters spread by ``start_spread`` (see
-    ``AdaptiveGaitConfig.start_spread``)."""
+    """The training env: pooled settling and starts spread; for adaptive_gait,
+    starting parameters spread by ``start_spread`` (see ``AdaptiveGaitConfig.start_spread``).
+
+    ``robust``: on a terrain-levels map with its curriculum, randomised physics,
+    pushes and observation noise (``robust_parts``; ``terrain_scale`` is ignored).
+    Otherwise one rough world at ``terrain_scale``, starts spread over it.
+    """
     kind = get_task(task).config_type
     extra = {"start_spread": start_spread} if "start_spread" in kind.__dataclass_fields__ else {}
+    if robust:
+        extra |= robust_parts() | {"position_noise": PAD_SPREAD}
+    else:
+        extra |= {"terrain_scale": terrain_scale, "position_noise": START_SPREAD}
     return kind(
         model_path="model/world_train.xml",
-        terrain_scale=terrain_scale,
         randomize=True,
-        position_noise=START_SPREAD,
         settle_steps=settle_steps,
         settle_pool=max(1, round(settle_pool_fraction * num_envs)),
         settle_reuse=settle_reuse,
@@ -54,6 +65,17 @@ def training_config(
         command_range=command_range,
         **extra,
     )
+
+
+def robust_parts() -> dict:
+    """The robust training's world: a terrain-levels map with its curriculum, randomised
+    physics, pushes and observation noise, each at its defaults (``EnvConfig`` fields)."""
+    return {
+        "terrain_levels": TerrainLevels(),
+        "randomization": Randomization(),
+        "pushes": Pushes(),
+        "observation_noise": ObservationNoise(),
+    }
 
 
 def evaluation_config(

@@ -414,7 +414,7 @@ class Perturbations:
 
     def _scales(self, name: str, width: int) -> Tensor | None:
         """Noise half-width of each value of the piece ``name``; None for an exact piece."""
-        if name == "observation":
+        if name in ("observation", "observation_from_start"):
             pieces = self.core.task.pieces()
             parts = [
                 self._scales(piece, pieces[piece].size) for piece in self.core.task.observation

@@ -21,7 +21,7 @@ from rwalk.runners.train import Args, make_env, rsl_rl_config
 from rwalk.wrappers import RslRlVecEnv
 
 ARGS = dataclasses.replace(
-    Args(), num_envs=4, settle_steps=2, max_episode_steps=30, hidden_dims=(16, 16)
+    Args(), num_envs=4, settle_steps=2, max_episode_steps=30, hidden_dims=(16, 16), robust=False
 )
 QUICK = EnvConfig(settle_steps=2, max_episode_steps=20)
 ROOT = Path(__file__).resolve().parents[1]
@@ -183,3 +183,21 @@ def test_policy_input_builds_the_adaptive_policy_group_with_a_command():
         np.testing.assert_allclose(policy_input(obs, info, pieces), expected, atol=1e-6)
         obs, _, _, _, info = single.step(action)
         batch.step(torch.from_numpy(action)[None])
+
+
+def test_the_observation_from_the_start_reads_the_start_from_info():
+    from rwalk import ResidualWalkEnv
+
+    env = ResidualWalkEnv()
+    obs, info = env.reset(seed=3)
+    for _ in range(5):
+        obs, *_, info = env.step(np.full(12, 0.3, dtype=np.float32))
+    row = policy_input(obs, info, ("observation_from_start", "lateral_offset"))
+    expected = env.unwrapped.core.piece("observation_from_start")[0].numpy().astype(np.float32)
+    np.testing.assert_array_equal(row[2:65], expected[2:])
+    # x and y come from the float32 observation (x ~ -3.5 m: one float32 step is 2.4e-7 m)
+    np.testing.assert_allclose(row[:2], expected[:2], rtol=0, atol=5e-7)
+    assert row[1] == pytest.approx(info["lateral_offset"])
+    assert row[0] == np.float32(np.float64(obs[0]) - info["start_position"][0])
+    with pytest.raises(KeyError, match="start_position"):
+        policy_input(obs, {}, ("observation_from_start",))

@@ -83,7 +83,7 @@ def test_spec_example_custom_gait(capsys):
     print(f"Expected velocity: {env.expected_velocity:.3f} m/s")
 
     assert capsys.readouterr().out.strip() == "Expected velocity: 0.125 m/s"
-    assert obs.shape == (65,) and set(info) == {"phase", "lateral_offset"}
+    assert obs.shape == (65,) and set(info) == {"phase", "lateral_offset", "start_position"}
 
 
 def test_spec_example_training_with_ppo(tmp_path, monkeypatch):

@@ -163,7 +163,7 @@ def test_noise_on_the_policy_group_only():
     noise = ObservationNoise()
     cfg = EnvConfig(**FAST, observation_noise=noise, randomization=Randomization())
     env = RslRlVecEnv(ResidualWalkVecEnv(3, cfg, seed=1))
-    assert env.groups["critic"] == ("observation", "phase", "lateral_offset", "physics")
+    assert env.groups["critic"] == ("observation", "phase", "lateral_offset", "physics", "heights")
     obs = env.get_observations()
     exact = env.core.piece("observation").float()
     policy, critic = obs["policy"], obs["critic"]

@@ -83,7 +83,10 @@ def test_exported_policies_act_like_the_checkpoint(trained):
     env = ResidualWalkVecEnv(4, eval_config(settle_steps=3), seed=0)
     env.core.reset()
     act = load_policy(trained / "model_1.pt", env)
-    obs = RslRlVecEnv(env).get_observations()["policy"]
+    layout = json.loads((trained / "exported" / "policy.json").read_text())
+    pieces = tuple(piece["name"] for piece in layout["input"]["pieces"])
+    assert pieces[0] == "observation_from_start"  # a robust run's policy (the default)
+    obs = RslRlVecEnv(env, policy_obs=pieces).get_observations()["policy"]
     expected = act()
     # Training moved the zero-initialised output layer: the actions are not trivially 0.
     assert expected.abs().max() > 1e-4

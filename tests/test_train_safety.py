@@ -291,7 +291,6 @@ BAD_FLAGS = [
 TRAIN_ONLY = [
     ("--terrain-scale", "2", "must be in [0, 1], got 2.0"),
     ("--settle-pool-fraction", "0", "must be in (0, 1], got 0.0"),
-    ("--curriculum-iterations", "-5", "must be >= 0, got -5"),
     ("--max-episode-steps", "0", "must be >= 1, got 0"),
     ("--hidden-dims", "0", "must be sizes >= 1, got (0,)"),
 ]

@@ -61,8 +61,9 @@ class ResidualWalkEnv(gym.Env):
 
     ## Info
     On reset and step: ``phase`` (gait phase in [0, 1) at the start of the next
-    step) and ``lateral_offset`` (torso y − y0, metres) — with the observation,
-    the 68 inputs of an exported policy (``rwalk.export.policy_input``). On step
+    step), ``lateral_offset`` (torso y − y0, metres) and ``start_position`` (x0,
+    y0 of the torso at the episode's start, metres) — with the observation, the
+    inputs of an exported policy (``rwalk.export.policy_input``). On step
     also ``reward_components`` (each term by name), ``body_height`` (metres) and
     ``diverged``.
 
@@ -172,6 +173,7 @@ class ResidualWalkEnv(gym.Env):
             "diverged": result.diverged,
             "phase": result.phase,
             "lateral_offset": result.lateral_offset,
+            "start_position": (float(self.core.x0[0]), float(self.core.y0[0])),
         }
         return (
             obs.astype(np.float32),
@@ -206,6 +208,7 @@ class ResidualWalkEnv(gym.Env):
         return {
             "phase": float(core.phase[0]),
             "lateral_offset": float(core.obs[0, OBS_POS.start + 1] - core.y0[0]),
+            "start_position": (float(core.x0[0]), float(core.y0[0])),
             **(
                 {"target_velocity": float(core.task.target[0])} if core.config.command_range else {}
             ),

@@ -38,6 +38,7 @@ import torch
 from rwalk import EnvConfig, ResidualWalkVecEnv, episodes, presets
 from rwalk.progress import Progress
 from rwalk.runners.cli import NATURAL_INT, POSITIVE_FLOAT, POSITIVE_INT, UNIT_FLOAT
+from rwalk.tasks.base import PRIVILEGED_PIECES
 from rwalk.wrappers import RslRlVecEnv
 
 #: Which command wrote a checkpoint, by its "trainer" key (or its layout, in older files).
@@ -114,7 +115,7 @@ def check_checkpoint(checkpoint: Path) -> None:
 def load_policy(checkpoint: Path, env: ResidualWalkVecEnv):
     """The checkpoint's deterministic policy and the observation groups it reads."""
     from rwalk.runners.checkpoints import SafeRunner
-    from rwalk.runners.train import Args, rsl_rl_config
+    from rwalk.runners.train import Args, policy_pieces, rsl_rl_config
 
     check_checkpoint(checkpoint)
     saved = saved_args(checkpoint)
@@ -124,11 +125,7 @@ def load_policy(checkpoint: Path, env: ResidualWalkVecEnv):
             f"checkpoint {str(checkpoint)!r} is a {args.task!r} policy; the env runs "
             f"{env.core.task.name!r}"
         )
-    # Trained with the default pieces: the observation and every extra piece the run had.
-    pieces = args.policy_obs or tuple(
-        name for name in ("observation", *env.core.task.extras())
-        if name != "command" or args.command_range
-    )  # fmt: skip
+    pieces = policy_pieces(args, env.core.task)
     # A robust run's critic also read the privileged pieces (the policy never does).
     critic = (*pieces, *PRIVILEGED_PIECES) if args.robust else pieces
     adapter = RslRlVecEnv(env, policy_obs=pieces, critic_obs=critic, reward_scale=args.reward_scale)

@@ -182,7 +182,6 @@ class Args:
         if not self.hidden_dims or min(self.hidden_dims) < 1:
             raise ValueError(f"--hidden-dims must be sizes >= 1, got {self.hidden_dims}")
 
-
     @classmethod
     def from_saved(cls, saved: dict) -> Args:
         """The flags of a run's config.json (``"args"``): flags this version no longer has
@@ -250,7 +249,20 @@ def rsl_rl_config(args: Args) -> dict[str, Any]:
 def make_env(args: Args) -> RslRlVecEnv:
     vec = ResidualWalkVecEnv(args.num_envs, env_config(args), seed=args.seed, task=args.task)
     vec.core.settle_progress = Progress("settling starts", "physics steps")
-    return RslRlVecEnv(vec, policy_obs=args.policy_obs or None, reward_scale=args.reward_scale)
+    pieces = policy_pieces(args, vec.core.task)
+    critic = (*pieces, *vec.core.task.privileged())
+    return RslRlVecEnv(vec, policy_obs=pieces, critic_obs=critic, reward_scale=args.reward_scale)
+
+
+def policy_pieces(args: Args, task) -> tuple[str, ...]:
+    """The pieces of a run's policy group: --policy-obs, else the observation and the
+    task's extra pieces (a robust run's observation counts the torso's x, y from the
+    episode's start: on the terrain-levels map, where it is would tell its level)."""
+    if args.policy_obs:
+        return args.policy_obs
+    observation = "observation_from_start" if args.robust else "observation"
+    extras = (name for name in task.extras() if name != "command" or args.command_range)
+    return (observation, *extras)
 
 
 def start_as_base_gait(runner) -> None:
