@@ -81,9 +81,9 @@ class TerrainLevels:
     """Level of every env at its first reset."""
     curriculum: bool = True
     """Move envs between levels at their resets (False: every env stays at start_level)."""
-    promote: float = 0.8
+    promote: float = 0.7
     """Walked at least this fraction of the expected distance without falling: one level up."""
-    demote: float = 0.4
+    demote: float = 0.35
     """Fell, or walked less than this fraction of the expected distance: one level down."""
 
     def __post_init__(self) -> None:

@@ -30,7 +30,9 @@ class RslRlVecEnv(VecEnv):
     ``Episode_Reward/<term>`` (per-step mean of each reward term),
     ``Episode/length``, ``Episode/fall_rate``, ``Episode/forward_velocity``,
     ``Episode/velocity_error`` (|mean v_x - v*|), ``Episode/diverged``, and
-    ``Perf/settle_share`` (share of all physics so far spent settling starts).
+    ``Perf/settle_share`` (share of all physics so far spent settling starts);
+    on a terrain-levels map also ``Curriculum/terrain_level`` (mean level of all
+    envs) and ``Curriculum/level_<kind>`` (of the envs on each kind of tile).
 
     Args:
         env: the batched env (its core is stepped directly: no TensorDict per step).
@@ -116,4 +118,10 @@ class RslRlVecEnv(VecEnv):
         log["Episode/velocity_error"] = (velocity - stats["target_velocity"]).abs().mean()
         log["Episode/diverged"] = stats["diverged"].double().mean()
         log["Perf/settle_share"] = torch.tensor(self.core.settle_share)
+        levels = self.core.config.terrain_levels
+        if levels is not None:
+            level = self.core.terrain_level.to(torch.float64)
+            log["Curriculum/terrain_level"] = level.mean()
+            for index, kind in enumerate(levels.kinds):
+                log[f"Curriculum/level_{kind}"] = level[self.core.terrain_kind == index].mean()
         return log
