@@ -53,7 +53,7 @@ def test_bad_ranges_name_the_field(make, field):
 def test_payload_and_latency_checked_against_the_robot():
     with pytest.raises(ValueError, match=r"payload \(-0.6, 0.0\) leaves the torso"):
         Core(EnvConfig(**FAST, randomization=Randomization(payload=(-0.6, 0.0))), 1)
-    with pytest.raises(ValueError, match="latency .* exceeds one control period"):
+    with pytest.raises(ValueError, match=r"latency .* exceeds one control period"):
         Core(EnvConfig(**FAST, randomization=Randomization(latency=(0, 6))), 1)
 
 
