@@ -161,3 +161,16 @@ def test_the_adaptive_task_runs_against_a_floor_of_its_own():
     assert g["ratio_to_floor"] == g["physics_steps_per_s"] / g["floor_physics_steps_per_s"]
     assert 0.0 < g["time_in_mujoco"] <= 1.0
     assert "| g AdaptiveGaitVecEnv | 4 | 1 |" in table(results)
+
+
+def test_the_robust_world_is_timed_against_the_plain_and_map_only_envs():
+    results = bench(["--only", "r,4,1", "--seconds", "0.3"])
+    (r,) = results
+    assert r["mode"] == "r" and r["n"] == 4
+    pairs = r["pairs"]
+    fps = {name: pairs[name]["env_steps_per_s"] for name in ("plain", "map", "robust")}
+    assert all(value > 0 for value in fps.values())
+    assert r["robust_over_plain"] == fps["robust"] / fps["plain"]
+    assert r["robust_over_map"] == fps["robust"] / fps["map"]
+    assert r["env_steps_per_s"] == fps["robust"]
+    assert any(line.startswith("(r) robust training env at N=4") for line in summary(results))

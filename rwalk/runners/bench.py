@@ -27,6 +27,11 @@ control period (``core.control_dt``: ``core.decimation`` physics substeps):
      core) over the single-env ResidualWalkEnv
   t  thread scaling: b and a on 1 thread and on all cores, all four in one process,
      alternating
+  r  the cost of the robust training's world: rsl-rl's env step (RslRlVecEnv.step,
+     random actions, its observation groups built, no PPO) on three envs of the same
+     N in one process, alternating: the plain training env (one rough world), the
+     terrain-levels map alone (envs spread over its levels), and the map with
+     randomised physics, pushes, latency, observation noise and the privileged critic
   e  EnvPool's MuJoCo Playground ports Go1JoystickRoughTerrain-v1 and
      Go1JoystickFlatTerrain-v1 beside b on world_train and world_flat, same N and
      threads, random actions, alternating, one process per terrain
@@ -319,6 +324,48 @@ def measure_scaling(n: int, threads: int, window: float) -> dict:
     }
 
 
+def measure_robust(n: int, threads: int, window: float) -> dict:
+    """(r): the plain, map-only and robust training envs through RslRlVecEnv.step,
+    alternating in one process; ratios of their env steps/s."""
+    from rwalk import ResidualWalkVecEnv
+    from rwalk.presets import training_config
+    from rwalk.wrappers import RslRlVecEnv
+
+    gen = torch.Generator().manual_seed(0)
+    robust = training_config(num_envs=n, threads=threads, robust=True)
+    configs = {
+        "plain": training_config(num_envs=n, threads=threads),
+        "map": dataclasses.replace(robust, randomization=None, pushes=None, observation_noise=None),
+        "robust": robust,
+    }
+    steps, meters = {}, {}
+    for name, config in configs.items():
+        vec = ResidualWalkVecEnv(n, config, seed=0)
+        if config.terrain_levels is not None:  # every level, as a curriculum spreads them
+            levels = config.terrain_levels.levels
+            vec.core.terrain_level.copy_(torch.randint(0, levels, (n,), generator=gen))
+        adapter = RslRlVecEnv(vec)  # resets; its default groups (privileged critic for robust)
+        _spread_episodes(vec.core, gen)
+
+        def step(adapter=adapter) -> None:
+            adapter.step(torch.rand(n, 12, generator=gen) * 2 - 1)
+
+        step()
+        steps[name], meters[name] = step, EnvMeter(vec.core)
+    timed = _interleaved(steps, window)
+    rows = {name: meters[name].result(*timed[name]) for name in configs}
+    fps = {name: row["env_steps_per_s"] for name, row in rows.items()}
+    return {
+        "r": rows["robust"]
+        | {
+            "robust_over_plain": fps["robust"] / fps["plain"],
+            "robust_over_map": fps["robust"] / fps["map"],
+            "map_over_plain": fps["map"] / fps["plain"],
+            "pairs": rows,
+        }
+    }
+
+
 def measure_rsl_rl(n: int, threads: int, window: float) -> dict:
     from rwalk.runners.checkpoints import SafeRunner
     from rwalk.runners.train import Args, make_env, rsl_rl_config
@@ -428,6 +475,7 @@ MEASURES = {
     "c": measure_rsl_rl,
     "d": measure_gym,
     "t": measure_scaling,
+    "r": measure_robust,
     # (e) runs one process per terrain: EnvPool's pools are too large to hold two.
     "e/rough": measure_envpool("rough"),
     "e/flat": measure_envpool("flat"),
@@ -439,6 +487,7 @@ LABELS = {
     "c": "rsl-rl collection",
     "d": "gymnasium vector env",
     "t": "ResidualWalkVecEnv, thread scaling",
+    "r": "robust training env vs plain and map-only",
     "e": "rwalk vs EnvPool Go1 joystick",
     "e/rough": "world_train vs EnvPool Go1JoystickRoughTerrain-v1",
     "e/flat": "world_flat vs EnvPool Go1JoystickFlatTerrain-v1",
@@ -462,7 +511,7 @@ def worker(mode: str, n: int, threads: int, window: float) -> None:
 
 #: Modes --only accepts; (a) is measured by the same worker as (b), on its robots, and
 #: (e) by one worker per terrain.
-ONLY_MODES = ("a", "b", "c", "d", "e", "g", "t")
+ONLY_MODES = ("a", "b", "c", "d", "e", "g", "r", "t")
 
 
 def parse_only(text: str) -> tuple[str, int, int]:
@@ -512,6 +561,7 @@ def plan(quick: bool) -> list[tuple[str, int, int]]:
     thread_counts = sorted({1, cores})
     runs = [(mode, n, t) for n in sizes for t in thread_counts for mode in "bc"]
     runs += [("g", QUICK_SIZES[-1], t) for t in thread_counts]  # the adaptive task at N=1024
+    runs.append(("r", QUICK_SIZES[-1], cores))  # the robust training's world at N=1024
     runs += [("d", n, 1) for n in (GYM_SYNC_SIZES[-1:] if quick else GYM_SYNC_SIZES)]
     if cores > 1:
         runs.append(("d", cores, cores))  # AsyncVectorEnv: one worker process per core
@@ -524,7 +574,7 @@ def plan(quick: bool) -> list[tuple[str, int, int]]:
 def _ratio_rows(results: list[dict]) -> None:
     floor = {(r["n"], r["threads"]): r["physics_steps_per_s"] for r in results if r["mode"] == "a"}
     for r in results:
-        if r["mode"] in ("t", "e"):  # (t) has ratios of its own; (e) has no floor
+        if r["mode"] in ("t", "e", "r"):  # (t) and (r) have ratios of their own; (e) no floor
             continue
         base = r.get("floor_physics_steps_per_s") or floor.get((r["n"], r["threads"]))
         r["ratio_to_floor"] = r["physics_steps_per_s"] / base if base else None
@@ -543,7 +593,7 @@ def table(results: list[dict]) -> str:
         "| time in MuJoCo | peak RSS (MB) |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
-    rows = [r for r in results if r["mode"] not in ("t", "e")]
+    rows = [r for r in results if r["mode"] not in ("t", "e", "r")]
     contest = [r for r in results if r["mode"] == "e"]
     if contest and not rows:
         return "\n".join(contest_table(contest))
@@ -624,6 +674,14 @@ def summary(results: list[dict]) -> list[str]:
             out.append(
                 f"(b) {r['threads']} threads vs 1 at N={r['n']}, one process, alternating: "
                 f"{r['env_speedup']:.2f}x (raw mujoco.rollout: {r['floor_speedup']:.2f}x)"
+            )
+    for r in results:
+        if r["mode"] == "r":
+            out.append(
+                f"(r) robust training env at N={r['n']}, {r['threads']} thread(s), one process, "
+                f"alternating: {r['robust_over_plain']:.3f} of the plain env's env steps/s "
+                f"({r['robust_over_map']:.3f} of the map alone; map alone "
+                f"{r['map_over_plain']:.3f} of plain)"
             )
     if ("b", 4096, cores) in by:
         r = by[("b", 4096, cores)]

@@ -49,7 +49,7 @@ def _map(base: EnvConfig, levels: TerrainLevels) -> EnvConfig:
         base,
         terrain_levels=levels,
         position_noise=presets.PAD_SPREAD,
-        settle_steps=MAP_SETTLE_STEPS,
+        settle_steps=min(base.settle_steps, MAP_SETTLE_STEPS),
     )
 
 
@@ -105,22 +105,25 @@ class Row:
     evaluation: Evaluation
 
 
-def condition_config(name: str, map_level: int) -> EnvConfig:
-    """The episodes of condition ``name``.
+def condition_config(
+    name: str, map_level: int = 6, max_steps: int = 1000, settle_steps: int = 500
+) -> EnvConfig:
+    """The episodes of condition ``name`` (the evaluation's: ``max_steps`` long after
+    ``settle_steps`` of settling; on a map at most MAP_SETTLE_STEPS).
 
     Raises:
         ValueError: an unknown condition (listing them), or a level outside the map.
     """
     if name not in CONDITIONS:
         raise ValueError(f"unknown condition {name!r}; choose from {tuple(CONDITIONS)}")
-    return CONDITIONS[name][1](presets.evaluation_config(), map_level)
+    base = presets.evaluation_config(max_steps=max_steps, settle_steps=settle_steps)
+    return CONDITIONS[name][1](base, map_level)
 
 
 def run_condition(
-    name: str, policies: dict[str, Path | None], episodes: int, seed: int, map_level: int
+    name: str, policies: dict[str, Path | None], episodes: int, seed: int, config: EnvConfig
 ) -> list[Row]:
     """Every policy (None: the base gait) on the same paired episodes of one condition."""
-    config = condition_config(name, map_level)
     env = ResidualWalkVecEnv(episodes, config, seed=seed)
     rows = []
     for label, checkpoint in policies.items():
@@ -220,6 +223,8 @@ def main(argv: list[str] | None = None) -> None:
     add("--episodes", type=POSITIVE_INT, default=100, help="paired episodes per condition")
     add("--seed", type=NATURAL_INT, default=1000, help="first episode's seed")
     add("--map-level", type=NATURAL_INT, default=6, help="level of the 'new maps' condition")
+    add("--max-steps", type=POSITIVE_INT, default=1000, help="episode length (env steps)")
+    add("--settle-steps", type=NATURAL_INT, default=500, help="settling before each episode")
     add("--conditions", nargs="+", default=list(CONDITIONS), choices=list(CONDITIONS),
         metavar="NAME", help=f"conditions to run (default: all of {list(CONDITIONS)})")  # fmt: skip
     add("--json", type=Path, help="write every row here")
@@ -239,13 +244,15 @@ def main(argv: list[str] | None = None) -> None:
         policies: dict[str, Path | None] = {"base gait": None, **dict(args.checkpoint)}
         rows = []
         for name in args.conditions:
-            rows += run_condition(name, policies, args.episodes, args.seed, args.map_level)
+            config = condition_config(name, args.map_level, args.max_steps, args.settle_steps)
+            rows += run_condition(name, policies, args.episodes, args.seed, config)
             print(table([r for r in rows if r.condition == name]).split("\n", 2)[2], flush=True)
         if args.json:
             from rwalk.runners.checkpoints import atomic_write_text
 
             data = {
                 "episodes": args.episodes, "seed": args.seed, "map_level": args.map_level,
+                "max_steps": args.max_steps, "settle_steps": args.settle_steps,
                 "conditions": {name: CONDITIONS[name][0] for name in args.conditions},
                 "checkpoints": {label: str(path) for label, path in args.checkpoint},
                 "rows": [dataclasses.asdict(r) for r in rows],

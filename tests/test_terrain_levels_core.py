@@ -1,0 +1,197 @@
+"""The core on a terrain-levels map: starts on each env's pad, the curriculum, the
+privileged pieces, the observation from the episode's start, and the robustness runner."""
+
+from __future__ import annotations
+
+import json
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from rwalk import EnvConfig, ResidualWalkVecEnv
+from rwalk.constants import FOOT_SITES, OBS_POS
+from rwalk.core import Core, _observation
+from rwalk.levels import TerrainLevels
+from rwalk.presets import PAD_SPREAD, training_config
+from rwalk.randomization import Pushes, Randomization
+from rwalk.runners import robustness
+from rwalk.runners.play import Evaluation
+from rwalk.wrappers import RslRlVecEnv
+
+SMALL = TerrainLevels(levels=4, tile_length=3.0, pad_length=0.8, seed=1)
+
+
+def config(**kw) -> EnvConfig:
+    base = dict(
+        terrain_levels=SMALL, settle_steps=20, randomize=True, position_noise=PAD_SPREAD,
+        max_episode_steps=50,
+    )  # fmt: skip
+    return EnvConfig(**(base | kw))
+
+
+def test_each_env_starts_on_the_pad_of_its_tile():
+    levels = SMALL
+    c = Core(config(terrain_levels=TerrainLevels(**{**vars(levels), "start_level": 2})), 8)
+    c.reset()
+    origins = c.terrain_map.origins(np.full(8, 2), np.arange(8) % len(levels.kinds))
+    xy = c.obs[:, OBS_POS.start : OBS_POS.start + 2].numpy()
+    # spread +-0.1 m, then 20 steps of gait walk forward by a few cm
+    assert np.all(np.abs(xy[:, 1] - origins[:, 1]) < 0.15)
+    assert np.all((xy[:, 0] - origins[:, 0] > -0.15) & (xy[:, 0] - origins[:, 0] < 0.3))
+    assert torch.equal(c.terrain_kind, torch.arange(8) % 4)
+
+
+def test_pool_starts_move_to_the_env_s_pad_with_their_observation():
+    c = Core(config(settle_pool=4, settle_reuse=1), 4, seed=2)
+    c.reset()
+    c.terrain_level[1] = 3
+    c.reset(np.array([1]))
+    origin = c.terrain_map.origin(3, 1)
+    assert abs(float(c.obs[1, 0]) - origin[0]) < 0.3 and abs(float(c.obs[1, 1]) - origin[1]) < 0.15
+    # the torso moved with its observation (the imu site sits within mm of the torso origin)
+    assert np.abs(c.sim.qpos[1, :2] - c.obs[1, :2].numpy()).max() < 0.005
+    c.step(torch.zeros(4, 12))
+    assert abs(float(c.obs[1, 1]) - origin[1]) < 0.15  # it walks on there, no jump
+
+
+def test_the_curriculum_moves_levels_by_the_distance_walked():
+    c = Core(config(terrain_levels=TerrainLevels(**{**vars(SMALL), "start_level": 1})), 4)
+    c.reset()
+    v = c.config.expected_velocity
+    c.walked_steps[:] = 100
+    expected = v * 100 * c.control_dt
+    c.episode_distance[:] = torch.tensor([0.9, 0.5, 0.2, 0.9], dtype=torch.float64) * expected
+    c.fell[:] = torch.tensor([False, False, False, True])
+    c.reset()
+    # >= 0.7 up; between 0.35 and 0.7 stays; < 0.35 down; a fall down
+    assert c.terrain_level.tolist() == [2, 1, 0, 0]
+    fixed = Core(config(terrain_levels=TerrainLevels(**{**vars(SMALL), "curriculum": False})), 2)
+    fixed.reset()
+    fixed.walked_steps[:] = 100
+    fixed.fell[:] = True
+    fixed.reset()
+    assert fixed.terrain_level.tolist() == [0, 0]
+
+
+def test_a_fall_is_recorded_for_the_curriculum():
+    c = Core(config(), 2)
+    c.reset()
+    c.sim.qpos[0, 3:7] = (0.0, 1.0, 0.0, 0.0)  # upside down
+    result = c.step(torch.zeros(2, 12))
+    assert bool(result.terminated[0]) and c.fell.tolist() == [True, False]
+
+
+def test_heights_piece_is_each_foot_above_the_ground_around_it():
+    c = Core(config(), 2, seed=4)
+    c.reset()
+    c.sim.forward()  # sensors at the current state, where mj_forward puts the sites
+    c.obs.copy_(_observation(c._sensors))
+    data = mujoco.MjData(c.model)
+    heights = c.piece("heights").view(2, 4, 5)
+    for i in range(2):
+        c.sim.batch.get_data(i, data)
+        mujoco.mj_forward(c.model, data)
+        for leg, site in enumerate(FOOT_SITES):
+            x, y, z = data.site(site).xpos
+            for s, (dx, dy) in enumerate(((0, 0), (0.03, 0), (-0.03, 0), (0, 0.03), (0, -0.03))):
+                ground = float(c.terrain.heights_at(torch.tensor(x + dx), torch.tensor(y + dy)))
+                assert float(heights[i, leg, s]) == pytest.approx(z - ground, abs=1e-9)
+    # on the flat pad the ground is at 0 under every sample: all five agree
+    assert torch.allclose(heights, heights[..., :1].expand_as(heights), atol=1e-12)
+
+
+def test_observation_from_start_hides_where_on_the_map_an_env_is():
+    c = Core(config(), 3)
+    c.reset()
+    local = c.piece("observation_from_start")
+    assert torch.equal(local[:, :2], torch.zeros(3, 2, dtype=torch.float64))
+    assert torch.equal(local[:, 2:], c.obs[:, 2:])
+    c.step(torch.zeros(3, 12))
+    local = c.piece("observation_from_start")
+    assert torch.equal(local[:, 0], c.obs[:, 0] - c.x0)
+    assert c.piece_size("observation_from_start") == 65
+
+
+def test_bad_map_settings_name_the_field():
+    with pytest.raises(ValueError, match="terrain level outside the map"):
+        TerrainLevels(levels=4, start_level=4)
+    with pytest.raises(
+        ValueError, match=r"EnvConfig.terrain_scale must be 1\.0 with terrain_levels"
+    ):
+        config(terrain_scale=0.5)
+    c = Core(config(), 1)
+    with pytest.raises(ValueError, match="cannot change a terrain-levels map"):
+        c.set_terrain_scale(0.5)
+
+
+def test_same_seed_same_world_and_trajectory_at_any_thread_count():
+    kw = dict(randomization=Randomization(), pushes=Pushes(interval=(0.1, 0.3)), settle_pool=2)
+    runs = []
+    for threads in (1, 2):
+        c = Core(config(num_threads=threads, **kw), 6, seed=9)
+        c.reset()
+        trace = []
+        for step in range(40):
+            result = c.step(torch.full((6, 12), 0.2 * (-1) ** step))
+            done = (result.terminated | result.truncated).nonzero().squeeze(-1)
+            c.reset(done.numpy())
+            trace.append(c.obs.clone())
+        runs.append((torch.stack(trace), c.perturb.params.clone(), c.terrain_level.clone()))
+    assert all(torch.equal(a, b) for a, b in zip(*runs, strict=True))
+
+
+def test_robust_training_logs_the_levels_and_gives_the_critic_privileged_pieces():
+    cfg = training_config(num_envs=8, robust=True, settle_steps=5, max_episode_steps=3)
+    env = RslRlVecEnv(ResidualWalkVecEnv(8, cfg, seed=0))
+    assert env.groups["critic"][-2:] == ("physics", "heights")
+    log = {}
+    for _ in range(4):
+        _, _, _, extras = env.step(torch.zeros(8, 12))
+        log |= extras.get("log", {})
+    assert {"Curriculum/terrain_level", "Curriculum/level_rough", "Curriculum/level_stones"} <= set(
+        log
+    )
+    assert float(log["Curriculum/terrain_level"]) == float(env.core.terrain_level.double().mean())
+
+
+def test_robustness_conditions_and_floors():
+    for name in robustness.CONDITIONS:
+        assert isinstance(robustness.condition_config(name), EnvConfig)
+    assert robustness.condition_config("payload").randomization.payload == (0.2, 0.2)
+    assert robustness.condition_config("new maps", map_level=3).terrain_levels.start_level == 3
+    with pytest.raises(ValueError, match="unknown condition 'moon'"):
+        robustness.condition_config("moon")
+    with pytest.raises(ValueError, match="terrain level outside the map"):
+        robustness.condition_config("new maps", map_level=10)
+
+    def row(condition, policy, falls, error):
+        e = Evaluation(policy, 100, 0.0, falls, 0.1, error, 0.001, 0.0, 1000.0)
+        return robustness.Row(condition, policy, e)
+
+    rows = [row("payload", "base gait", 0.12, 0.08), row("payload", "a", 0.03, 0.04),
+            row("payload", "b", 0.04, 0.01), row("payload", "c", 0.0, 0.041)]  # fmt: skip
+    assert robustness.floors(rows) == {"a": "met", "b": "missed", "c": "missed"}
+    nominal = [row("nominal", "base gait", 0.1, 0.08), row("nominal", "a", 0.02, 0.02),
+               row("nominal", "b", 0.0, 0.021)]  # fmt: skip
+    assert robustness.floors(nominal) == {"a": "met", "b": "missed"}
+
+
+def test_robustness_runs_paired_episodes_and_writes_its_rows(tmp_path, capsys):
+    out = tmp_path / "r.json"
+    robustness.main(
+        ["--episodes", "2", "--max-steps", "20", "--settle-steps", "5", "--conditions",
+         "pushes", "new maps", "--json", str(out), "--plot", str(tmp_path / "r.png")]
+    )  # fmt: skip
+    data = json.loads(out.read_text())
+    assert [(r["condition"], r["policy"]) for r in data["rows"]] == [
+        ("pushes", "base gait"),
+        ("new maps", "base gait"),
+    ]
+    assert data["rows"][0]["evaluation"]["episodes"] == 2
+    assert (tmp_path / "r.png").stat().st_size > 0
+    printed = capsys.readouterr().out
+    assert "| pushes | base gait |" in printed
+    robustness.main(["--tables", str(out)])
+    assert "| new maps | base gait |" in capsys.readouterr().out
