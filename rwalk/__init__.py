@@ -7,7 +7,9 @@ from rwalk.core import Core, ResidualWalkCore, StepResult
 from rwalk.envs import AdaptiveGaitEnv, ResidualWalkEnv
 from rwalk.gait import BezierGaitController, GaitParameters
 from rwalk.kinematics import LegGeometry, leg_fk, leg_ik
+from rwalk.levels import TerrainLevels
 from rwalk.physics import Physics
+from rwalk.randomization import ObservationNoise, Pushes, Randomization
 from rwalk.rewards import RewardWeights
 from rwalk.sim import BatchedSim
 from rwalk.tasks import TASKS, AdaptiveGaitConfig, GaitBounds, get_task
@@ -24,12 +26,16 @@ __all__ = [
     "GaitBounds",
     "GaitParameters",
     "LegGeometry",
+    "ObservationNoise",
     "Physics",
+    "Pushes",
+    "Randomization",
     "ResidualWalkCore",
     "ResidualWalkEnv",
     "ResidualWalkVecEnv",
     "RewardWeights",
     "StepResult",
+    "TerrainLevels",
     "get_task",
     "leg_fk",
     "leg_ik",
