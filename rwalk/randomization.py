@@ -56,27 +56,30 @@ NOISE_STREAM = "obs_noise"
 FLOOR_GEOM = "floor"
 
 
-def _pair(obj, name: str, low_limit: float | None, why: str, integer: bool = False) -> None:
+def _check_range(
+    obj, name: str, low: float | None = None, above: bool = False, integer: bool = False
+) -> None:
+    """Raise a ValueError naming ``obj``'s field ``name`` unless it is a (min, max) pair
+    of finite numbers (integers) with min <= max and min >= low (> low if ``above``)."""
     value = getattr(obj, name)
-    kind = type(obj).__name__
+    field = f"{type(obj).__name__}.{name}"
     ok = (
         isinstance(value, tuple)
         and len(value) == 2
         and all(
-            isinstance(v, (int, float))
+            isinstance(v, int if integer else (int, float))
             and not isinstance(v, bool)
             and math.isfinite(v)
-            and (not integer or isinstance(v, int))
             for v in value
         )
     )
     if not ok:
         wanted = "integers" if integer else "finite numbers"
-        raise ValueError(f"{kind}.{name} must be a pair of {wanted} (min, max), got {value!r}")
+        raise ValueError(f"{field} must be a pair of {wanted} (min, max), got {value!r}")
     if value[0] > value[1]:
-        raise ValueError(f"{kind}.{name} has min > max: {value!r}")
-    if low_limit is not None and value[0] < low_limit:
-        raise ValueError(f"{kind}.{name} {why}, got {value!r}")
+        raise ValueError(f"{field} has min > max: {value!r}")
+    if low is not None and (value[0] < low or (above and value[0] == low)):
+        raise ValueError(f"{field} must be {'>' if above else '>='} {low:g}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -106,16 +109,14 @@ class Randomization:
     """Delay of the servo targets, in physics substeps (at most one control period)."""
 
     def __post_init__(self) -> None:
-        _pair(self, "friction", 0.0, "must not be negative")
-        _pair(self, "payload", None, "")
-        _pair(self, "com_offset", None, "")
-        for name in ("kp_scale", "force_scale"):
-            _pair(self, name, 0.0, "must be > 0 (a servo's strength)")
-            if getattr(self, name)[0] == 0:
-                raise ValueError(f"Randomization.{name} must be > 0, got {getattr(self, name)!r}")
-        for name in ("damping_scale", "armature_scale"):
-            _pair(self, name, 0.0, "must not be negative")
-        _pair(self, "latency", 0, "must be >= 0 substeps", integer=True)
+        _check_range(self, "friction", 0.0)
+        _check_range(self, "payload")
+        _check_range(self, "com_offset")
+        _check_range(self, "kp_scale", 0.0, above=True)
+        _check_range(self, "force_scale", 0.0, above=True)
+        _check_range(self, "damping_scale", 0.0)
+        _check_range(self, "armature_scale", 0.0)
+        _check_range(self, "latency", 0, integer=True)
 
     @classmethod
     def nominal(cls, **ranges) -> Randomization:
@@ -139,10 +140,8 @@ class Pushes:
     """Time from an episode's start or a kick to the next kick, uniform. Seconds."""
 
     def __post_init__(self) -> None:
-        _pair(self, "speed", 0.0, "must not be negative")
-        _pair(self, "interval", None, "")
-        if not self.interval[0] > 0:
-            raise ValueError(f"Pushes.interval must be > 0 seconds, got {self.interval!r}")
+        _check_range(self, "speed", 0.0)
+        _check_range(self, "interval", 0.0, above=True)
 
 
 @dataclass(frozen=True)
