@@ -73,6 +73,8 @@ START_CLEARANCE = 0.004
 FOOTPRINT_RADIUS = 0.13
 #: Random stream of the start poses (see ``rwalk.rng``).
 START_STREAM = "start_pose"
+#: Random stream of the levels of envs that pass the top of a terrain map.
+LEVEL_STREAM = "terrain_level"
 
 
 class StepResult(NamedTuple):
@@ -292,6 +294,7 @@ class Core:
         pool_size = self._pool.size if self._pool is not None else 0
         self._starts_drawn = np.zeros(self.num_envs + pool_size, dtype=np.uint64)
         """Starts drawn so far by each env, then by each pool entry. Shape: (N + pool,)."""
+        self._level_draws = torch.zeros(self.num_envs, dtype=torch.long)
         self.task.seed()
         self.perturb.seed(self._seed)
         return self._seed
@@ -402,9 +405,14 @@ class Core:
         target = self.task.v_target
         target = target[rows] if isinstance(target, Tensor) else target
         expected = target * self.walked_steps[rows].to(torch.float64) * self.control_dt
+        redraw = None
+        if levels.recycle:  # env i's k-th draw from the key (seed + i, "terrain_level", k)
+            u = rng.uniform_rows(self._seed, rows, LEVEL_STREAM, self._level_draws, 1)[:, 0]
+            redraw = torch.floor(u * levels.levels).to(torch.long)
         self.terrain_level[rows] = update_levels(
-            self.terrain_level[rows], self.episode_distance[rows], expected, self.fell[rows], levels
-        )
+            self.terrain_level[rows], self.episode_distance[rows], expected, self.fell[rows],
+            levels, redraw,
+        )  # fmt: skip
 
     def _ids(self, env_ids: np.ndarray | Tensor | None) -> np.ndarray:
         """Sorted unique int32 row indices from ids or a boolean mask of length N."""

@@ -85,6 +85,9 @@ class TerrainLevels:
     """Walked at least this fraction of the expected distance without falling: one level up."""
     demote: float = 0.35
     """Fell, or walked less than this fraction of the expected distance: one level down."""
+    recycle: bool = True
+    """An env promoted beyond the top level restarts at a uniformly drawn level (legged_gym's
+    rule), so that easy ground stays in the mix; False: it stays at the top."""
 
     def __post_init__(self) -> None:
         def is_int(value: object) -> bool:
@@ -342,19 +345,24 @@ def update_levels(
     expected: torch.Tensor,
     fell: torch.Tensor,
     cfg: TerrainLevels,
+    redraw: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Levels after an episode: one up for a walk of at least ``promote * expected`` without
     falling, one down for a fall or a walk shorter than ``demote * expected``, clamped to the map;
+    with ``cfg.recycle``, an env promoted beyond the top takes its ``redraw`` level instead;
     unchanged when ``cfg.curriculum`` is False.
 
-    Shape: (N,) int64, (N,) m, (N,) m, (N,) bool -> (N,) int64.
+    Shape: (N,) int64, (N,) m, (N,) m, (N,) bool, optional (N,) int64 -> (N,) int64.
     """
     if not cfg.curriculum:
         return levels.clone()
     up = ~fell & (distance >= cfg.promote * expected)
     down = fell | (distance < cfg.demote * expected)
     step = up.long() - down.long()  # never both: demote <= promote
-    return torch.clamp(levels + step, 0, cfg.levels - 1)
+    moved = torch.clamp(levels + step, 0, cfg.levels - 1)
+    if cfg.recycle and redraw is not None:
+        moved = torch.where(up & (levels == cfg.levels - 1), redraw, moved)
+    return moved
 
 
 __all__ = [

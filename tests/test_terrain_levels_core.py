@@ -195,3 +195,26 @@ def test_robustness_runs_paired_episodes_and_writes_its_rows(tmp_path, capsys):
     assert "| pushes | base gait |" in printed
     robustness.main(["--tables", str(out)])
     assert "| new maps | base gait |" in capsys.readouterr().out
+
+
+def test_envs_passing_the_top_restart_at_a_drawn_level():
+    top = TerrainLevels(**{**vars(SMALL), "start_level": 3})
+    c = Core(config(terrain_levels=top), 64, seed=3)
+    c.reset()
+    c.walked_steps[:] = 100
+    c.episode_distance[:] = c.config.expected_velocity * 100 * c.control_dt
+    c.reset()
+    levels = c.terrain_level
+    assert set(levels.tolist()) == {0, 1, 2, 3}  # uniform over the map's 4 levels
+    again = Core(config(terrain_levels=top), 64, seed=3)
+    again.reset()
+    again.walked_steps[:] = 100
+    again.episode_distance[:] = again.episode_distance + c.config.expected_velocity * 2
+    again.reset()
+    assert torch.equal(again.terrain_level, levels)  # the same keys, the same draws
+    stay = Core(config(terrain_levels=TerrainLevels(**{**vars(top), "recycle": False})), 4)
+    stay.reset()
+    stay.walked_steps[:] = 100
+    stay.episode_distance[:] = 10.0
+    stay.reset()
+    assert stay.terrain_level.tolist() == [3, 3, 3, 3]
