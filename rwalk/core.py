@@ -23,6 +23,14 @@ exactly like a single env seeded s + i at every reset settled in place (a
 partial reset served from the pool takes the pool's next entry instead), and
 different seeds draw independent starts.
 
+Worlds that vary per env (``config.terrain_levels``, ``randomization``, ``pushes``,
+``observation_noise``): at a reset the terrain curriculum moves the env's level
+(``rwalk.levels``) and ``core.perturb`` (``rwalk.randomization``) draws its physics
+and first kick, before the start is placed on its tile's pad and settled in its
+own physics (pool starts settle on the pad of tile (0, 0) with the model's physics
+and move to the env's pad). Env i's k-th draw of each comes from the key
+(s + i, stream, k) of its own stream ("physics", "push", "terrain_level").
+
 Exactness: gait, IK, observation, reward and termination use only elementwise
 IEEE arithmetic and ``rwalk.exactmath``, so env i of a batch steps bit for bit
 like a single env with the same state and actions, on any x86-64 CPU; the
