@@ -335,6 +335,24 @@ def test_resume_past_max_iterations_names_both_numbers(run3, tmp_path):
     assert not (tmp_path / "out").exists()  # nothing written, nothing exported
 
 
+def test_resume_with_the_other_training_kind_names_the_flag(run3, tmp_path):
+    with pytest.raises(SystemExit) as exit_:
+        train.main([*TINY, "--no-robust", "--resume", str(run3 / "model_2.pt"),
+                    "--max-iterations", "5", "--log-dir", str(tmp_path / "out")])  # fmt: skip
+    message = str(exit_.value.code)
+    assert "trained with --robust" in message and "pass --robust to resume it" in message
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_saved_run_without_the_robust_flag_trained_without_it():
+    old = dataclasses.asdict(train.Args()) | {"curriculum_iterations": 0}
+    del old["robust"]
+    args = train.Args.from_saved(
+        {k: list(v) if isinstance(v, tuple) else v for k, v in old.items()}
+    )
+    assert args.robust is False and args == dataclasses.replace(train.Args(), robust=False)
+
+
 # 8. one vocabulary ---------------------------------------------------------------------------
 
 

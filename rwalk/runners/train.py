@@ -296,6 +296,15 @@ def resume_point(args: Args) -> tuple[Path, int] | None:
             f"{args.max_iterations} leaves nothing to train (iterations count from 0); "
             f"pass --max-iterations {iteration + 2} or more"
         )
+    saved = path.parent / "config.json"
+    if saved.is_file():
+        trained = Args.from_saved(json.loads(saved.read_text())["args"])
+        if trained.robust != args.robust:
+            flag = "--robust" if trained.robust else "--no-robust"
+            raise RunSetupError(
+                f"--resume {path}: its run trained with {flag} (its {saved}), and the robust "
+                f"training's policy and critic read other pieces; pass {flag} to resume it"
+            )
     return path, iteration
 
 
