@@ -35,6 +35,7 @@ import datetime
 import hashlib
 import json
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -78,7 +79,7 @@ class Group:
         return self.rank == 0
 
     @classmethod
-    def from_env(cls, environ: dict[str, str] | None = None) -> Group:
+    def from_env(cls, environ: Mapping[str, str] | None = None) -> Group:
         """The group torchrun's environment variables describe; WORLD_SIZE unset or 1:
         a single process (``Group()``).
 
@@ -111,7 +112,7 @@ class Group:
         return group
 
 
-def _env_int(env, name: str, default: str | None = None) -> int:
+def _env_int(env: Mapping[str, str], name: str, default: str | None = None) -> int:
     value = env.get(name, default)
     if value is None:
         raise GroupError(
@@ -156,6 +157,16 @@ def leave() -> None:
     """Leave the process group, if this process joined one."""
     if dist.is_initialized():
         dist.destroy_process_group()
+
+
+def is_group_failure(error: BaseException) -> bool:
+    """Whether ``error`` is a collective that failed (a rank gone, a timeout): torch's
+    ``DistError``, or gloo's transport errors, which reach Python as plain ``RuntimeError``s
+    naming their gloo source file ("...gloo/transport/tcp/pair.cc: Connection closed by
+    peer", "... Timed out waiting 5000ms for send operation to complete")."""
+    return isinstance(error, dist.DistError) or (
+        isinstance(error, RuntimeError) and "gloo" in str(error)
+    )
 
 
 def multi_gpu_config(group: Group) -> dict[str, int] | None:
@@ -307,6 +318,7 @@ __all__ = [
     "check_same_settings",
     "cores",
     "default_threads",
+    "is_group_failure",
     "join",
     "leave",
     "multi_gpu_config",

@@ -50,7 +50,6 @@ from typing import Any
 import mujoco
 import numpy as np
 import torch
-import torch.distributed as dist
 
 from rwalk import EnvConfig, ResidualWalkVecEnv, presets
 from rwalk.export import export_policy
@@ -422,7 +421,8 @@ def train(args: Args) -> Path:
             rank 0's, on every rank).
         distributed.GroupError: ranks started with different flags or torchrun
             variables that make no group (naming them).
-        torch.distributed.DistError: another rank died, or hung past --dist-timeout.
+        RuntimeError: under torchrun, another rank died or hung past --dist-timeout
+            (``distributed.is_group_failure``).
     """
     clock = time.perf_counter()  # the wall-time budget counts from here, env building included
     group = distributed.Group.from_env()
@@ -538,7 +538,9 @@ def main(argv: list[str] | None = None) -> None:
         train(args)
     except (CheckpointError, FileNotFoundError, RunSetupError, distributed.GroupError) as error:
         raise SystemExit(f"{PROG}: error: {where}{error}") from None
-    except dist.DistError as error:
+    except RuntimeError as error:
+        if not (where and distributed.is_group_failure(error)):
+            raise
         raise SystemExit(
             f"{PROG}: error: {where}the training's process group failed: another rank died, "
             f"or did not answer within --dist-timeout {args.dist_timeout:g} s "
