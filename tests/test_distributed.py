@@ -164,10 +164,16 @@ def test_ranks_with_different_flags_refuse_to_start_naming_the_rank_and_flag(tmp
     assert not (tmp_path / "run").exists()  # refused before anything was written
 
 
-def test_only_threads_may_differ_between_ranks(tmp_path):
-    argv = [*TINY, "--max-iterations", "1", "--log-dir", str(tmp_path / "run")]
+def test_ranks_may_differ_in_threads_and_stop_together_at_the_time_budget(tmp_path):
+    # Each rank's own clock could stop it one chunk apart from the others, and the one
+    # that trains on would wait for ever: the stop is rank 0's, broadcast.
+    argv = [*TINY, "--max-iterations", "100000", "--max-minutes", "0.001",
+            "--log-dir", str(tmp_path / "run")]  # fmt: skip
     results = finish(start_ranks([*argv, "--threads", "1"], [*argv, "--threads", "2"]))
     assert [code for code, _ in results] == [0, 0], results[0][1][-3000:] + results[1][1][-3000:]
+    assert "1 threads" in results[0][1] and "2 threads" in results[1][1]
+    assert "stopping: the 0.001-minute budget is reached" in results[0][1]
+    assert [it for it, _ in checkpoint_files(tmp_path / "run")] == [0]
 
 
 def test_rank_0s_setup_error_ends_every_rank_with_its_message(tmp_path):
