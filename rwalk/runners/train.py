@@ -12,7 +12,7 @@ One training over several processes, on one machine or several (rsl-rl's
 data-parallel PPO on gloo; see rwalk.runners.distributed):
 
     torchrun --standalone --nproc-per-node 2 -m runners.train --num-envs 512
-    torchrun --nnodes 2 --node-rank R --nproc-per-node 8 --rdzv-endpoint HOST:29400 \
+    torchrun --nnodes 2 --node-rank R --nproc-per-node 8 --rdzv-endpoint HOST:29400 \\
         -m runners.train --num-envs 512     # on each machine, R = 0, 1
 
 Each rank steps its own --num-envs envs (2 ranks x 512: 1024 envs per rollout)
