@@ -12,6 +12,7 @@ lock file ``.rwalk.lock`` holding that process's pid.
 
 from __future__ import annotations
 
+import io
 import os
 import pickle
 import re
@@ -23,6 +24,8 @@ from typing import IO, Any
 
 import torch
 from rsl_rl.runners import OnPolicyRunner
+
+from rwalk.runners import distributed
 
 CHECKPOINT_NAME = re.compile(r"model_(\d+)\.pt")
 """rsl-rl's checkpoint names; group 1 is the iteration."""
@@ -80,8 +83,9 @@ def save_checkpoint(obj: Any, path: str | os.PathLike[str]) -> Path:
     return atomic_write(path, lambda file: torch.save(obj, file))
 
 
-def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Read a checkpoint as data (``weights_only=True``).
+def load_checkpoint(path: str | os.PathLike[str], data: bytes | None = None) -> dict[str, Any]:
+    """Read a checkpoint as data (``weights_only=True``); ``data``: the file's bytes, read
+    elsewhere (by rank 0 of a distributed run), which ``path`` then only names.
 
     Raises:
         FileNotFoundError: naming the path.
@@ -89,10 +93,11 @@ def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
             checkpoint, or holds anything but tensors and plain values.
     """
     path = Path(path)
-    if not path.is_file():
+    if data is None and not path.is_file():
         raise FileNotFoundError(f"checkpoint {str(path)!r} not found")
     try:
-        loaded = torch.load(path, map_location="cpu", weights_only=True)
+        source = path if data is None else io.BytesIO(data)
+        loaded = torch.load(source, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as error:
         # torch's message suggests weights_only=False; name only what was refused.
         lines = [line.strip() for line in str(error).splitlines() if "GLOBAL" in line]
@@ -243,11 +248,29 @@ def remove_unfinished_writes(folder: str | os.PathLike[str]) -> list[Path]:
 
 
 class SafeRunner(OnPolicyRunner):
-    """rsl-rl's ``OnPolicyRunner`` whose checkpoints are written atomically and read as data.
+    """rsl-rl's ``OnPolicyRunner`` whose checkpoints are written atomically and read as data,
+    and whose data-parallel training runs on CPU processes (gloo) under torchrun.
 
     Checkpoints carry ``"trainer": "rsl_rl"`` (rsl-rl's ``alg.load`` ignores
     keys it does not know).
     """
+
+    def _configure_multi_gpu(self) -> None:
+        """rsl-rl's multi-GPU setup for CPU processes: join a gloo group (torchrun's
+        variables; ``rwalk.runners.distributed``) instead of NCCL on ``cuda:LOCAL_RANK``,
+        and fill ``cfg["multi_gpu"]`` as rsl-rl's PPO reads it. A single process
+        (WORLD_SIZE unset or 1) sets nothing up; a CUDA device keeps rsl-rl's own setup.
+        """
+        if str(self.device).startswith("cuda"):
+            super()._configure_multi_gpu()
+            return
+        group = distributed.Group.from_env()
+        self.gpu_world_size = group.world_size
+        self.gpu_global_rank = group.rank
+        self.gpu_local_rank = group.local_rank
+        self.is_distributed = group.distributed
+        distributed.join(group)  # a no-op if rwalk-train joined it already, with its timeout
+        self.cfg["multi_gpu"] = distributed.multi_gpu_config(group)
 
     _saved: tuple[str, int] | None = None
     """(path, iteration) of the last save."""
@@ -275,8 +298,10 @@ class SafeRunner(OnPolicyRunner):
         load_cfg: dict | None = None,
         strict: bool = True,
         map_location: str | None = None,
+        data: bytes | None = None,
     ) -> dict | None:
-        loaded = check_rsl_rl(load_checkpoint(path), path)
+        """Load the state ``path`` holds (``data``: its bytes, read by rank 0)."""
+        loaded = check_rsl_rl(load_checkpoint(path, data), path)
         if self.alg.load(loaded, load_cfg, strict):
             self.current_learning_iteration = loaded["iter"]
         return loaded.get("infos")

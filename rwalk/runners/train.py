@@ -8,6 +8,19 @@
 
 (In a checkout without installing: python -m runners.train ...)
 
+One training over several processes, on one machine or several (rsl-rl's
+data-parallel PPO on gloo; see rwalk.runners.distributed):
+
+    torchrun --standalone --nproc-per-node 2 -m runners.train --num-envs 512
+    torchrun --nnodes 2 --node-rank R --nproc-per-node 8 --rdzv-endpoint HOST:29400 \\
+        -m runners.train --num-envs 512     # on each machine, R = 0, 1
+
+Each rank steps its own --num-envs envs (2 ranks x 512: 1024 envs per rollout)
+with its own seed stream and its share of the machine's cores; rank 0 alone
+writes the run folder (checkpoints, config.json, TensorBoard, exports) and holds
+its lock. Every rank must be started with the same flags (only --threads may
+differ): ranks that differ refuse to start, naming the flags.
+
 Writes to --log-dir: TensorBoard events (every reward term, episode length, fall
 rate, forward velocity), checkpoints, config.json (what play.py needs to rebuild
 the env), and at the end exported/policy.pt (TorchScript) and
@@ -23,19 +36,25 @@ progress.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import importlib.metadata
 import json
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import mujoco
+import numpy as np
 import torch
 
 from rwalk import EnvConfig, ResidualWalkVecEnv, presets
 from rwalk.export import export_policy
 from rwalk.progress import Progress
+from rwalk.runners import distributed
 from rwalk.runners.checkpoints import (
     CheckpointError,
     RunSetupError,
@@ -50,6 +69,7 @@ from rwalk.runners.checkpoints import (
 )
 from rwalk.runners.cli import (
     command,
+    flag,
     parse_dataclass,
     require_at_least,
     require_in,
@@ -72,7 +92,12 @@ class Args:
     task: str = field(
         default="residual_walk", metadata={"help": "task: residual_walk or adaptive_gait"}
     )
-    num_envs: int = field(default=1024, metadata={"help": "parallel envs"})
+    num_envs: int = field(
+        default=1024,
+        metadata={
+            "help": "parallel envs (under torchrun: per rank, so P ranks step P times as many)"
+        },
+    )
     max_iterations: int = field(
         default=300, metadata={"help": "PPO iterations in total, counting those of --resume"}
     )
@@ -80,7 +105,13 @@ class Args:
         default=math.inf, metadata={"help": "stop at a checkpoint after this much wall time"}
     )
     log_dir: str = field(default="logs/rwalk", metadata={"help": "output folder of this run"})
-    seed: int = field(default=0, metadata={"help": "seed of the envs and of torch"})
+    seed: int = field(
+        default=0,
+        metadata={
+            "help": "seed of the envs and of torch (under torchrun, rank r seeds its envs with "
+            "seed + r * (num_envs + its settled-start pool) and torch with seed + r)"
+        },
+    )
     resume: str = field(
         default="",
         metadata={
@@ -148,8 +179,21 @@ class Args:
             "fraction of each range (0: the starting gait; residual_walk ignores it)"
         },
     )
-    threads: int = field(default=0, metadata={"help": "physics threads (0 = all cores)"})
+    threads: int = field(
+        default=0,
+        metadata={
+            "help": "physics threads (0 = all cores; under torchrun, per rank: 0 = the "
+            "machine's cores / its ranks, and torch's threads too)"
+        },
+    )
     export: bool = field(default=True, metadata={"help": "export TorchScript and ONNX at the end"})
+    dist_timeout: float = field(
+        default=distributed.DEFAULT_TIMEOUT_S,
+        metadata={
+            "help": "under torchrun: seconds a rank waits for the others (in any exchange) "
+            "before the whole training fails; longer than building the envs or one iteration"
+        },
+    )
 
     def __post_init__(self) -> None:
         require_at_least(
@@ -165,7 +209,7 @@ class Args:
             "num_mini_batches",
         )
         require_at_least(self, 0, "settle_steps", "threads", "seed")
-        require_positive(self, "reward_scale", "learning_rate", "init_noise_std")
+        require_positive(self, "reward_scale", "learning_rate", "init_noise_std", "dist_timeout")
         require_positive(self, "max_minutes", finite=False)
         require_at_least(self, 0, "entropy_coef")
         require_in(self, "gamma", 0.0, 1.0, low_open=True)
@@ -343,31 +387,116 @@ def claim_log_dir(args: Args, log_dir: Path, resume: tuple[Path, int] | None) ->
         print(f"deleted {path.name}, the unfinished write of a killed run")
 
 
+PER_RANK_FLAGS = ("threads",)
+"""Flags the ranks of one training may set differently: a machine's own resources."""
+SETUP_ERRORS = (CheckpointError, FileNotFoundError, RunSetupError)
+"""Errors of a run that cannot start as asked: rank 0's reach every rank (same message)."""
+
+
+def run_settings(args: Args) -> dict[str, Any]:
+    """What every rank of a training must share: its flags (but ``PER_RANK_FLAGS``) and the
+    versions of the libraries that compute (JSON-able; keys are the flags and package names)."""
+    flags = {flag(k): v for k, v in dataclasses.asdict(args).items() if k not in PER_RANK_FLAGS}
+    versions = {
+        "torch": torch.__version__,
+        "rsl-rl-lib": importlib.metadata.version("rsl-rl-lib"),
+        "mujoco": mujoco.__version__,
+        "numpy": np.__version__,
+    }
+    return flags | versions
+
+
+def rank_args(args: Args, group: distributed.Group) -> Args:
+    """The flags of this rank's envs. One process: ``args``. Rank r of a group: seed
+    ``args.seed + r * (num_envs + pool)``, so that its envs and settled-start pool entries
+    (keyed seed + i, then seed + num_envs + j; ``rwalk.core``) share no key with another
+    rank's; --threads 0 becomes the machine's cores divided among its ranks."""
+    if not group.distributed:
+        return args
+    stride = args.num_envs + env_config(args).settle_pool
+    threads = args.threads or distributed.default_threads(group)
+    return dataclasses.replace(args, seed=args.seed + group.rank * stride, threads=threads)
+
+
 def train(args: Args) -> Path:
     """Run the training; returns the last checkpoint's path.
 
+    Under torchrun (WORLD_SIZE > 1) every rank runs this and joins the gloo group
+    first; a single process sets nothing up.
+
     Raises:
         FileNotFoundError, CheckpointError, RunSetupError: before anything is
-            trained, naming the file, folder or flags at fault.
+            trained, naming the file, folder or flags at fault (under torchrun,
+            rank 0's, on every rank).
+        distributed.GroupError: ranks started with different flags or torchrun
+            variables that make no group (naming them).
+        RuntimeError: under torchrun, another rank died or hung past --dist-timeout
+            (``distributed.is_group_failure``).
     """
     clock = time.perf_counter()  # the wall-time budget counts from here, env building included
-    resume = resume_point(args)
+    group = distributed.Group.from_env()
+    distributed.join(group, args.dist_timeout)
+    try:
+        distributed.check_same_settings(group, run_settings(args))
+        return _train(args, group, clock)
+    finally:
+        distributed.leave()
+
+
+def _claim_run(args: Args, group: distributed.Group, stack: contextlib.ExitStack):
+    """Rank 0 checks --resume, takes the run folder's lock (held until ``stack`` closes) and
+    claims the folder; every rank gets the resume point (rank 0's) or rank 0's error, and
+    the checkpoint's bytes (None for one process: it reads the file itself)."""
+    resume, failure = None, None
+    if group.main:
+        try:
+            resume = resume_point(args)
+            stack.enter_context(run_lock(Path(args.log_dir)))
+            claim_log_dir(args, Path(args.log_dir), resume)
+        except Exception as error:  # the other ranks wait to hear of it
+            failure = error
+    distributed.raise_if_failed(group, failure, SETUP_ERRORS)
+    if not group.distributed:
+        return resume, None
+    shared = distributed.broadcast_json(group, resume and [str(resume[0]), resume[1]])
+    if shared is None:
+        return None, None
+    data = distributed.broadcast_bytes(group, resume[0].read_bytes() if resume else None)
+    return (Path(shared[0]), int(shared[1])), data
+
+
+def _train(args: Args, group: distributed.Group, clock: float) -> Path:
+    say = print if group.main else lambda *_, **__: None  # rank 0 speaks for the group
     log_dir = Path(args.log_dir)
-    with run_lock(log_dir):  # held until the run ends: one run writes to a folder at a time
-        claim_log_dir(args, log_dir, resume)
-        torch.manual_seed(args.seed)
-        print(f"building {args.num_envs} envs (settling their starts) ...", flush=True)
-        env = make_env(args)
-        print(f"  ready in {time.perf_counter() - clock:.1f} s", flush=True)
-        runner = SafeRunner(env, rsl_rl_config(args), log_dir=str(log_dir), device="cpu")
+    with contextlib.ExitStack() as stack:  # rank 0 holds the lock until the run ends
+        resume, data = _claim_run(args, group, stack)
+        mine = rank_args(args, group)
+        torch.manual_seed(args.seed + group.rank)
+        if group.distributed:
+            torch.set_num_threads(mine.threads)  # the rank's share, not all cores
+            print(
+                f"[rwalk] rank {group.rank} of {group.world_size} (pid {os.getpid()}): "
+                f"{mine.num_envs} envs seeded from {mine.seed}, {mine.threads} threads",
+                flush=True,
+            )
+        say(f"building {args.num_envs} envs (settling their starts) ...", flush=True)
+        env = make_env(mine)
+        say(f"  ready in {time.perf_counter() - clock:.1f} s", flush=True)
+        runner = SafeRunner(
+            env, rsl_rl_config(args), log_dir=str(log_dir) if group.main else None, device="cpu"
+        )
+        hashes = os.environ.get(distributed.PARAMETER_HASHES_ENV)
+        if hashes:
+            distributed.record_parameter_hashes(runner, hashes, group)
         if resume is None:
-            start_as_base_gait(runner)
-        else:
-            runner.load(str(resume[0]))
+            start_as_base_gait(runner)  # learn() then broadcasts rank 0's parameters
+        else:  # every rank loads rank 0's file
+            runner.load(str(resume[0]), data=data)
             runner.current_learning_iteration += 1  # continue after the saved iteration
-            print(f"resumed from {resume[0]}: next iteration {runner.current_learning_iteration}")
-        config = {"args": dataclasses.asdict(args), "env": dataclasses.asdict(env.env.config)}
-        atomic_write_text(log_dir / "config.json", json.dumps(config, indent=2))
+            say(f"resumed from {resume[0]}: next iteration {runner.current_learning_iteration}")
+        if group.main:
+            config = {"args": dataclasses.asdict(args), "env": dataclasses.asdict(env.env.config)}
+            atomic_write_text(log_dir / "config.json", json.dumps(config, indent=2))
 
         first = runner.current_learning_iteration
         budget = args.max_minutes * 60.0
@@ -378,7 +507,8 @@ def train(args: Args) -> Path:
             # save_interval in its loop and the call's last iteration after it.
             last = min(-(-it // args.save_interval) * args.save_interval, args.max_iterations - 1)
             runner.learn(num_learning_iterations=last + 1 - it, init_at_random_ep_len=it == first)
-            runner.logger.writer.close()  # learn() opens a new writer each call
+            if runner.logger.writer is not None:  # rank 0's; learn() opens one each call
+                runner.logger.writer.close()
             checkpoint = log_dir / f"model_{last}.pt"
             runner.current_learning_iteration = last + 1  # learn() leaves it at its last one
             done = last + 1 - first
@@ -387,29 +517,44 @@ def train(args: Args) -> Path:
             per_iteration = (now - learning_since) / done
             left = args.max_iterations - (last + 1)
             eta = min(left * per_iteration, max(budget - elapsed, 0.0))
-            print(
+            say(
                 f"[rwalk] iteration {last + 1}/{args.max_iterations}, "
                 f"{elapsed / 60:.1f} min elapsed, ETA {eta / 60:.1f} min, "
                 f"checkpoint {checkpoint}",
                 flush=True,
             )
-            if elapsed + per_iteration * min(args.save_interval, left) > budget:
-                print(f"[rwalk] stopping: the {args.max_minutes:g}-minute budget is reached")
+            # Rank 0's clock decides for every rank: all stop after the same iteration.
+            over = elapsed + per_iteration * min(args.save_interval, left) > budget
+            if distributed.agree(group, over):
+                say(f"[rwalk] stopping: the {args.max_minutes:g}-minute budget is reached")
                 break
 
-        if args.export:
+        if args.export and group.main:
             jit_path, onnx_path = export_policy(runner, log_dir / "exported")
             print(f"[rwalk] exported {jit_path} and {onnx_path} (layout: policy.json)")
     return checkpoint
 
 
 def main(argv: list[str] | None = None) -> None:
-    """The ``rwalk-train`` command; a run that cannot start exits with a one-line error."""
+    """The ``rwalk-train`` command; a run that cannot start exits with a one-line error
+    (under torchrun, naming the rank), and so does a rank whose group failed."""
     args = parse_args(argv)
+    where = ""
     try:
+        group = distributed.Group.from_env()
+        if group.distributed:
+            where = f"rank {group.rank} of {group.world_size}: "
         train(args)
-    except (CheckpointError, FileNotFoundError, RunSetupError) as error:
-        raise SystemExit(f"{PROG}: error: {error}") from None
+    except (CheckpointError, FileNotFoundError, RunSetupError, distributed.GroupError) as error:
+        raise SystemExit(f"{PROG}: error: {where}{error}") from None
+    except RuntimeError as error:
+        if not (where and distributed.is_group_failure(error)):
+            raise
+        raise SystemExit(
+            f"{PROG}: error: {where}the training's process group failed: another rank died, "
+            f"or did not answer within --dist-timeout {args.dist_timeout:g} s "
+            f"({type(error).__name__}: {error})"
+        ) from None
 
 
 if __name__ == "__main__":
