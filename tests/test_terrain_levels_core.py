@@ -218,3 +218,28 @@ def test_envs_passing_the_top_restart_at_a_drawn_level():
     stay.episode_distance[:] = 10.0
     stay.reset()
     assert stay.terrain_level.tolist() == [3, 3, 3, 3]
+
+
+def test_checkpoints_carry_the_curriculum(tmp_path):
+    import contextlib
+    import dataclasses
+    import io
+
+    from rwalk.runners.checkpoints import SafeRunner
+    from rwalk.runners.train import Args, make_env, rsl_rl_config
+
+    args = dataclasses.replace(
+        Args(), num_envs=8, settle_steps=2, max_episode_steps=30, hidden_dims=(8,)
+    )
+
+    def runner():
+        with contextlib.redirect_stdout(io.StringIO()):
+            return SafeRunner(make_env(args), rsl_rl_config(args), log_dir=None, device="cpu")
+
+    first = runner()
+    first.env.core.terrain_level.copy_(torch.arange(8) % 10)
+    first.save(str(tmp_path / "model_0.pt"))
+    second = runner()
+    assert second.env.core.terrain_level.tolist() == [0] * 8
+    second.load(str(tmp_path / "model_0.pt"))
+    assert second.env.core.terrain_level.tolist() == list(range(8))

@@ -288,6 +288,9 @@ class SafeRunner(OnPolicyRunner):
         saved["iter"] = self.current_learning_iteration
         saved["infos"] = infos
         saved["trainer"] = TRAINER
+        core = getattr(self.env, "core", None)
+        if core is not None and core.terrain_map is not None:
+            saved["terrain_level"] = core.terrain_level.clone()  # the curriculum's state
         save_checkpoint(saved, path)
         self._saved = (str(path), self.current_learning_iteration)
         self.logger.save_model(path, self.current_learning_iteration)
@@ -304,4 +307,15 @@ class SafeRunner(OnPolicyRunner):
         loaded = check_rsl_rl(load_checkpoint(path, data), path)
         if self.alg.load(loaded, load_cfg, strict):
             self.current_learning_iteration = loaded["iter"]
+        core = getattr(self.env, "core", None)
+        levels = loaded.get("terrain_level")
+        if core is not None and core.terrain_map is not None and levels is not None:
+            if levels.shape == core.terrain_level.shape:
+                # The curriculum goes on where it was: from each env's next start.
+                core.terrain_level.copy_(levels.clamp(0, core.config.terrain_levels.levels - 1))
+            else:
+                print(
+                    f"[rwalk] {path}: terrain levels of {levels.numel()} envs, this run has "
+                    f"{core.num_envs}: the curriculum starts again at the start level"
+                )
         return loaded.get("infos")

@@ -492,6 +492,8 @@ def _train(args: Args, group: distributed.Group, clock: float) -> Path:
             start_as_base_gait(runner)  # learn() then broadcasts rank 0's parameters
         else:  # every rank loads rank 0's file
             runner.load(str(resume[0]), data=data)
+            if env.core.terrain_map is not None:
+                env.core.reset()  # every env restarts on its level of the resumed curriculum
             runner.current_learning_iteration += 1  # continue after the saved iteration
             say(f"resumed from {resume[0]}: next iteration {runner.current_learning_iteration}")
         if group.main:
