@@ -209,4 +209,5 @@ def make_collector(args: Args, env: TransformedEnv, policy: torch.nn.Module) -> 
             backend_options=options,
         )
     torch.set_num_threads(threads_here)
+    collector.update_policy_weights_()  # every worker starts from this process's weights
     return collector
