@@ -92,12 +92,15 @@ class Args:
     reward_scale: float = field(default=1e-3, metadata={"help": "reward multiplier for PPO"})
     hidden_dims: tuple[int, ...] = field(default=(128, 128), metadata={"help": "MLP layers"})
     settle_steps: int = field(default=100, metadata={"help": "zero-residual steps at each start"})
-    seed: int = field(default=0, metadata={"help": "seed of the envs and of torch"})
+    seed: int = field(
+        default=0,
+        metadata={"help": "seed of the envs (worker w's from seed + w * num_envs) and of torch"},
+    )
     threads: int = field(
         default=0,
         metadata={
-            "help": "physics and torch threads of each collector worker (0 = all cores "
-            "with one collector, cores // --collectors with several)"
+            "help": "physics threads (0 = all cores); with several collectors, the physics "
+            "and torch threads of each worker (0 = cores // --collectors)"
         },
     )
     collectors: int = field(
