@@ -83,6 +83,15 @@ def test_two_distributed_workers_train_two_iterations(tmp_path):
     assert load_checkpoint(tmp_path / "torchrl_2.pt")["iteration"] == 2
 
 
+@pytest.mark.slow
+def test_two_ray_workers_train_two_iterations(tmp_path):
+    pytest.importorskip("ray", reason='the ray extra: pip install -e ".[ray]"')
+    done = _train("--collectors", "2", "--backend", "ray", "--log-dir", str(tmp_path))
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert "[torchrl] iteration 2/2" in done.stdout
+    assert load_checkpoint(tmp_path / "torchrl_2.pt")["iteration"] == 2
+
+
 # ------------------------------------------------------------------- workers, seeds, weights
 
 
