@@ -1,6 +1,7 @@
 """rwalk-train-torchrl with several collector workers on TorchRL's backends
 (rwalk.runners.torchrl_collect). Tiny runs: 8 envs per worker, settle 2 steps."""
 
+import contextlib
 import json
 import pickle
 import subprocess
@@ -17,8 +18,10 @@ from rwalk.runners import train_torchrl
 from rwalk.runners.checkpoints import load_checkpoint
 from rwalk.runners.cli import parse_dataclass
 from rwalk.runners.torchrl_collect import (
+    WorkerDied,
     WorkerEnv,
     available_cores,
+    check_workers,
     make_collector,
     make_env,
     worker_threads,
@@ -161,6 +164,23 @@ def test_bad_collector_flags_are_usage_errors(flags, message, capsys):
         parse_dataclass(Args, flags, None, prog="rwalk-train-torchrl")
     assert exit_.value.code == 2
     assert f"rwalk-train-torchrl: error: {message}" in capsys.readouterr().err
+
+
+def test_a_dead_worker_stops_the_run_before_the_weights_wait_for_it():
+    args = _args()
+    env = make_env(args)
+    actor, _ = make_modules(args, env)
+    collector = make_collector(args, env, actor)
+    try:
+        next(iter(collector))
+        check_workers(collector)  # all alive
+        collector.procs[1].kill()
+        collector.procs[1].join()
+        with pytest.raises(WorkerDied, match=r"collector worker 1 exited \(exit code -9\)"):
+            check_workers(collector)
+    finally:
+        with contextlib.suppress(Exception):  # one worker is gone
+            collector.shutdown()
 
 
 def test_ray_missing_is_one_line_naming_the_extra(tmp_path, monkeypatch):

@@ -149,6 +149,29 @@ def require_backend(backend: str) -> None:
         raise RunSetupError("--backend distributed needs torch.distributed with gloo")
 
 
+class WorkerDied(RuntimeError):
+    """A collector worker process has exited while the run still needs it."""
+
+
+def check_workers(collector: BaseCollector) -> None:
+    """Raise if a local worker process of ``collector`` has exited.
+
+    Call it before ``update_policy_weights_()``: TorchRL 0.14's process backend waits
+    for every worker's acknowledgement of new weights without a timeout, so a dead
+    worker would hang the run there. (While collecting, TorchRL checks by itself.)
+
+    Raises:
+        WorkerDied: naming the worker and its exit code.
+    """
+    # procs: MultiCollector's workers; jobs: DistributedCollector's with launcher "mp".
+    workers = getattr(collector, "procs", None) or getattr(collector, "jobs", None) or []
+    for i, worker in enumerate(workers):
+        if hasattr(worker, "is_alive") and not worker.is_alive():
+            raise WorkerDied(
+                f"collector worker {i} exited (exit code {worker.exitcode}); the run stops"
+            )
+
+
 def _free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("localhost", 0))

@@ -28,6 +28,7 @@ cores // collectors); policy weights go to the workers after every update.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import time
@@ -58,7 +59,14 @@ from rwalk.runners.cli import (
     require_in,
     require_positive,
 )
-from rwalk.runners.torchrl_collect import BACKENDS, make_collector, make_env, require_backend
+from rwalk.runners.torchrl_collect import (
+    BACKENDS,
+    WorkerDied,
+    check_workers,
+    make_collector,
+    make_env,
+    require_backend,
+)
 
 __all__ = ["Args", "main", "make_env", "make_modules", "train"]
 
@@ -198,10 +206,16 @@ def _train(args: Args, log_dir: Path) -> Path:
     obs_norm = env.transform[1].state_dict()
     collector = make_collector(args, env, actor)
     del env  # with several collectors the workers step their own envs
-    try:  # shut the workers down on an error too: they would keep this process alive
-        return _learn(args, log_dir, collector, actor, critic, obs_norm)
-    finally:
-        collector.shutdown()
+    try:
+        checkpoint = _learn(args, log_dir, collector, actor, critic, obs_norm)
+    except BaseException:
+        # Shut the workers down on an error too (they would keep this process alive), but
+        # report the error itself: with a worker lost, shutting down may fail as well.
+        with contextlib.suppress(Exception):
+            collector.shutdown()
+        raise
+    collector.shutdown()
+    return checkpoint
 
 
 def _learn(
@@ -244,6 +258,7 @@ def _learn(
                 total.backward()
                 nn.utils.clip_grad_norm_(loss.parameters(), 1.0)
                 optimizer.step()
+        check_workers(collector)  # a dead one would never acknowledge the weights
         collector.update_policy_weights_()  # to the workers, when there are any
         ended = batch["next", "done"].squeeze(-1)
         reward = batch["next", "reward"].mean().item() / args.reward_scale
@@ -280,7 +295,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parse_dataclass(Args, argv, __doc__, prog=prog)
     try:
         train(args)
-    except RunSetupError as error:  # the folder is in use
+    except (RunSetupError, WorkerDied) as error:  # folder in use, extra missing, worker lost
         raise SystemExit(f"{prog}: error: {error}") from None
 
 
