@@ -331,7 +331,6 @@ def measure_robust(n: int, threads: int, window: float) -> dict:
     from rwalk.presets import training_config
     from rwalk.wrappers import RslRlVecEnv
 
-    gen = torch.Generator().manual_seed(0)
     robust = training_config(num_envs=n, threads=threads, robust=True)
     configs = {
         "plain": training_config(num_envs=n, threads=threads),
@@ -340,6 +339,8 @@ def measure_robust(n: int, threads: int, window: float) -> dict:
     }
     steps, meters = {}, {}
     for name, config in configs.items():
+        # Each env its own generator, seeded alike: the same levels, spread and actions.
+        gen = torch.Generator().manual_seed(0)
         vec = ResidualWalkVecEnv(n, config, seed=0)
         if config.terrain_levels is not None:  # every level, as a curriculum spreads them
             levels = config.terrain_levels.levels
@@ -347,7 +348,7 @@ def measure_robust(n: int, threads: int, window: float) -> dict:
         adapter = RslRlVecEnv(vec)  # resets; its default groups (privileged critic for robust)
         _spread_episodes(vec.core, gen)
 
-        def step(adapter=adapter) -> None:
+        def step(adapter=adapter, gen=gen) -> None:
             adapter.step(torch.rand(n, 12, generator=gen) * 2 - 1)
 
         step()
