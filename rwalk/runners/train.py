@@ -182,8 +182,8 @@ class Args:
     threads: int = field(
         default=0,
         metadata={
-            "help": "physics threads (0 = all cores; under torchrun, per rank: 0 = the "
-            "machine's cores / its ranks, and torch's threads too)"
+            "help": "physics and torch threads (0 = all cores; under torchrun, per rank: "
+            "0 = the machine's cores / its ranks)"
         },
     )
     export: bool = field(default=True, metadata={"help": "export TorchScript and ONNX at the end"})
@@ -472,8 +472,9 @@ def _train(args: Args, group: distributed.Group, clock: float) -> Path:
         resume, data = _claim_run(args, group, stack)
         mine = rank_args(args, group)
         torch.manual_seed(args.seed + group.rank)
+        if mine.threads:  # the process's share of the cores, for learning too
+            torch.set_num_threads(mine.threads)
         if group.distributed:
-            torch.set_num_threads(mine.threads)  # the rank's share, not all cores
             print(
                 f"[rwalk] rank {group.rank} of {group.world_size} (pid {os.getpid()}): "
                 f"{mine.num_envs} envs seeded from {mine.seed}, {mine.threads} threads",
