@@ -170,6 +170,16 @@ def test_plot_training_draws_the_curves_with_the_base_gait(trained, tmp_path):
     assert image.shape[0] > 300 and image.std() > 5
 
 
+def test_plot_training_overlays_runs_by_iteration(trained, tmp_path):
+    from rwalk.runners.plot_training import main
+
+    out = tmp_path / "curves.png"
+    main([str(trained), str(trained), "--by-iteration", "--title", "two", "--out", str(out)])
+    import imageio.v3 as iio
+
+    assert iio.imread(out).std() > 5
+
+
 def test_walk_demo_prints_the_speed():
     out = run("rwalk.runners.walk_demo", "--envs", "2", "--seconds", "1")
     assert "forward speed" in out and "expected 0.1333" in out

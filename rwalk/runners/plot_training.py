@@ -2,6 +2,7 @@
 
     python -m runners.plot_training logs/rwalk --out docs/learning_curve.png \
         --base-gait-json docs/eval.json
+    python -m runners.plot_training logs/a logs/b --by-iteration --out curves.png  # overlaid
 
 Plots, per iteration, the mean over episodes that ended of forward velocity,
 velocity-tracking error, fall rate and return per step (rsl-rl's
@@ -42,7 +43,11 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("log_dir", type=Path)
+    parser.add_argument("log_dir", type=Path, nargs="+", help="run folders (overlaid)")
+    parser.add_argument(
+        "--by-iteration", action="store_true", help="x axis: PPO iteration (default: minutes)"
+    )
+    parser.add_argument("--title", help="the figure's title")
     parser.add_argument("--out", type=Path, default=Path("docs/learning_curve.png"))
     parser.add_argument("--base-gait-json", type=Path, help="play.py --json output")
     args = parser.parse_args(argv)
@@ -52,24 +57,30 @@ def main(argv: list[str] | None = None) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    series = read_scalars(args.log_dir)
+    runs = {str(log_dir): read_scalars(log_dir) for log_dir in args.log_dir}
     base = None
     if args.base_gait_json:
         rows = json.loads(args.base_gait_json.read_text())
         base = next((r for r in rows if r["name"] == "base gait"), None)
-    start = min(v[0][1] for v in series.values() if v)
     fig, axes = plt.subplots(2, 2, figsize=(11, 7))
     for ax, (tag, label, base_key) in zip(axes.flat, PANELS, strict=True):
-        values = series.get(tag, [])
-        if values:
-            minutes = [(t - start) / 60 for _, t, _ in values]
-            ax.plot(minutes, [v for _, _, v in values], lw=1)
+        for name, series in runs.items():
+            values = series.get(tag, [])
+            if not values:
+                continue
+            if args.by_iteration:
+                x = [step for step, _, _ in values]
+            else:
+                start = min(v[0][1] for v in series.values() if v)
+                x = [(t - start) / 60 for _, t, _ in values]
+            ax.plot(x, [v for _, _, v in values], lw=1, label=name if len(runs) > 1 else None)
         if base is not None and base_key is not None:
             ax.axhline(base[base_key], color="k", ls="--", lw=1, label="base gait (evaluated)")
+        if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8)
-        ax.set(xlabel="wall-clock minutes", ylabel=label)
+        ax.set(xlabel="PPO iteration" if args.by_iteration else "wall-clock minutes", ylabel=label)
         ax.grid(alpha=0.3)
-    fig.suptitle(f"Training on world_train at full roughness ({args.log_dir})")
+    fig.suptitle(args.title or f"Training ({', '.join(runs)})")
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=110)
