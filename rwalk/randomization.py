@@ -286,6 +286,7 @@ class Perturbations:
         from its end). Shape: (N, K, 12)."""
         self._generator = torch.Generator()
         self._noise_cache: dict[str, Tensor] = {}
+        self._scale_cache: dict[str, Tensor | None] = {}  # per piece: fixed by the config
 
     def seed(self, seed: int) -> None:
         """Restart the draws (the core was reseeded)."""
@@ -401,7 +402,9 @@ class Perturbations:
         every read within one step). Shape: (N, D) -> (N, D)."""
         if self.noise is None:
             return value
-        scales = self._scales(name, value.shape[-1])
+        if name not in self._scale_cache:
+            self._scale_cache[name] = self._scales(name, value.shape[-1])
+        scales = self._scale_cache[name]
         if scales is None:
             return value
         noise = self._noise_cache.get(name)

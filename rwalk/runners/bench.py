@@ -371,7 +371,8 @@ def measure_rsl_rl(n: int, threads: int, window: float) -> dict:
     from rwalk.runners.checkpoints import SafeRunner
     from rwalk.runners.train import Args, make_env, rsl_rl_config
 
-    args = dataclasses.replace(Args(), num_envs=n, threads=threads)
+    # The plain training env, as in (b) and docs/performance.md; mode r times the robust one.
+    args = dataclasses.replace(Args(), num_envs=n, threads=threads, robust=False)
     env = make_env(args)
     runner = SafeRunner(env, rsl_rl_config(args), log_dir=None, device="cpu")
     alg = runner.alg
