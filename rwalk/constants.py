@@ -20,6 +20,8 @@ TORSO_BODY = "torso"
 TORSO_SITE = "imu"
 #: Name of the ground geom in every world (a plane or a heightfield).
 GROUND_GEOM = "ground"
+#: Name of the flat plane under a heightfield that carries robots leaving the map.
+FLOOR_GEOM = "floor"
 #: Name of the heightfield asset in rough worlds.
 TERRAIN_HFIELD = "terrain"
 #: Standing keyframe of the robot.

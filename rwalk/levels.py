@@ -32,13 +32,11 @@ import numpy as np
 import torch
 
 from rwalk.assets import resolve_model_path, validate_model
-from rwalk.constants import GROUND_GEOM, TERRAIN_HFIELD
+from rwalk.constants import FLOOR_GEOM, GROUND_GEOM, TERRAIN_HFIELD
 from rwalk.terrain import CORRELATION_LENGTH, generate_heightmap
 
 #: Every kind of tile, in the order that keys their random streams.
 KNOWN_KINDS: tuple[str, ...] = ("rough", "slopes", "steps", "stones")
-#: Name of the plane that carries robots that leave the map.
-FLOOR_GEOM = "floor"
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,7 @@ from torch import Tensor
 
 from rwalk import exactmath, rng
 from rwalk.constants import (
+    FLOOR_GEOM,
     FOOT_GEOMS,
     GROUND_GEOM,
     JOINT_NAMES,
@@ -52,8 +53,6 @@ from rwalk.constants import (
 PHYSICS_STREAM = "physics"
 PUSH_STREAM = "push"
 NOISE_STREAM = "obs_noise"
-#: Geoms besides the ground that a robot may stand on (a world's flat floor under a map).
-FLOOR_GEOM = "floor"
 
 
 def _check_range(
@@ -335,9 +334,7 @@ class Perturbations:
         ids = rows.numpy()
         p = self.params[rows].numpy()
         a, nom = self._arrays, self._nominal
-        friction = a["geom_friction"]
-        for g in self._friction_geoms:
-            friction[ids, g, 0] = p[:, 0]
+        a["geom_friction"][ids[:, None], self._friction_geoms, 0] = p[:, 0:1]
         t = self._torso
         a["body_mass"][ids, t] = nom["body_mass"][t] + p[:, 1]
         a["body_ipos"][ids, t, 0] = nom["body_ipos"][t, 0] + p[:, 2]
