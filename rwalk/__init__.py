@@ -9,7 +9,9 @@ from rwalk.gait import BezierGaitController, GaitParameters
 from rwalk.kinematics import LegGeometry, leg_fk, leg_ik
 from rwalk.levels import TerrainLevels
 from rwalk.physics import Physics
-from rwalk.randomization import ObservationNoise, Pushes, Randomization
+from rwalk.observations import ObservationNoise
+from rwalk.perturbations import Pushes
+from rwalk.randomization import Randomization
 from rwalk.rewards import RewardWeights
 from rwalk.sim import BatchedSim
 from rwalk.tasks import TASKS, AdaptiveGaitConfig, GaitBounds, get_task
@@ -52,7 +54,7 @@ def __getattr__(name: str):
     # The TorchRL view loads torchrl on first use only: importing torchrl switches the
     # process's multiprocessing start method to spawn, which `import rwalk` must not do.
     if name in ("ResidualWalkVecEnv", "AdaptiveGaitVecEnv"):
-        from rwalk.envs import vec_env
+        from rwalk.envs import torchrl_env as vec_env
 
         return getattr(vec_env, name)
     raise AttributeError(f"module 'rwalk' has no attribute {name!r}")

@@ -1,4 +1,4 @@
-"""Configuration of the residual-walk task."""
+"""The config of a task's envs: world, gait, timing, starts, reward and the world's variations."""
 
 from __future__ import annotations
 
@@ -8,7 +8,9 @@ from dataclasses import dataclass, field, fields
 from rwalk.gait import GaitParameters
 from rwalk.levels import TerrainLevels
 from rwalk.physics import Physics
-from rwalk.randomization import ObservationNoise, Pushes, Randomization
+from rwalk.observations import ObservationNoise
+from rwalk.perturbations import Pushes
+from rwalk.randomization import Randomization
 from rwalk.rewards import RewardWeights
 
 #: Most physics substeps per env step: the controller's targets for a whole control

@@ -10,7 +10,9 @@ import dataclasses
 
 from rwalk.config import EnvConfig
 from rwalk.levels import TerrainLevels
-from rwalk.randomization import ObservationNoise, Pushes, Randomization
+from rwalk.observations import ObservationNoise
+from rwalk.perturbations import Pushes
+from rwalk.randomization import Randomization
 from rwalk.tasks import get_task
 
 __all__ = [

@@ -1,16 +1,17 @@
-"""Worlds that differ per env: randomised physics, pushes, control latency and sensor noise.
+"""Physics randomisation: each env's own physics, drawn at every reset, from one table.
 
-Configured by three dataclasses on ``EnvConfig`` (each None by default, the
-spec's env): ``Randomization`` (per-env physics through ``mujoco.batch.Batch.expand``,
-resampled at every reset), ``Pushes`` (horizontal velocity kicks to the torso at
-random intervals) and ``ObservationNoise`` (uniform noise on the policy's
-observation group, never on the critic's). ``Perturbations`` applies them to a
-core, vectorised over the batch: no Python per env.
+``PHYSICS_PARAMS`` is the table: one ``PhysicsParam`` row per randomised
+quantity, with its name, the ``Randomization`` field holding its range (rows may
+share one: ``com_offset`` ranges both ``com_x`` and ``com_y``), its training range,
+the model's own value, how it writes which model fields, and the centre and
+spread that normalise it in the privileged ``physics`` piece. Drawing, applying,
+normalising, the ``Randomization`` config's fields and the model fields that
+``mujoco.batch.Batch.expand`` gives each env all loop over the table: a new
+randomised parameter is one row.
 
-Every draw is keyed like the starts (``rwalk.rng``): env i of a core seeded s
-draws its k-th physics sample from (s + i, "physics", k) and its k-th push from
-(s + i, "push", k); noise comes from a torch generator seeded from (s, "obs_noise").
-So the same seed gives bit-identical worlds and trajectories at any thread count.
+``PhysicsRandomizer`` applies a ``Randomization`` to a batch, vectorised: no Python
+per env. Env i of a core seeded s draws its k-th physics from the key
+(s + i, "physics", k) of ``rwalk.rng``, one uniform number per row.
 
 Ranges (a 0.8 kg robot on 0.3 N·m hobby servos; see docs/robustness.md for the
 references: legged_gym and MuJoCo Playground's Go1):
@@ -23,39 +24,119 @@ armature ×0.8–1.2, latency 0–2 substeps (0–8 ms).
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from dataclasses import dataclass, fields
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 import torch
 from torch import Tensor
 
-from rwalk import exactmath, rng
-from rwalk.constants import (
-    FLOOR_GEOM,
-    FOOT_GEOMS,
-    GROUND_GEOM,
-    JOINT_NAMES,
-    OBS_ANGVEL,
-    OBS_DIM,
-    OBS_FOOT_POS,
-    OBS_FOOT_VEL,
-    OBS_JOINT_POS,
-    OBS_JOINT_VEL,
-    OBS_LINVEL,
-    OBS_POS,
-    OBS_QUAT,
-    TORSO_BODY,
-)
+from rwalk import rng
+from rwalk.constants import FLOOR_GEOM, FOOT_GEOMS, GROUND_GEOM, JOINT_NAMES, TORSO_BODY
 
-#: Random streams (see ``rwalk.rng``).
+#: Random stream of the physics draws (see ``rwalk.rng``).
 PHYSICS_STREAM = "physics"
-PUSH_STREAM = "push"
-NOISE_STREAM = "obs_noise"
+#: Contact friction of the model (the larger of foot 1.2 and ground 1.0).
+NOMINAL_FRICTION = 1.2
 
 
-def _check_range(
+class Target:
+    """A model field a parameter writes: ``field`` at ``select(model)`` (an index into one
+    model's array; rows of every env are written at once)."""
+
+    def __init__(self, field: str, select: Callable[[mujoco.MjModel], tuple]) -> None:
+        self.field, self.select = field, select
+
+
+def _friction_geoms(model: mujoco.MjModel) -> tuple:
+    """Column 0 (sliding) of the ground, the floor under a heightfield, and the feet."""
+    names = [GROUND_GEOM, FLOOR_GEOM, *FOOT_GEOMS]
+    ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, name) for name in names]
+    return (np.array([i for i in ids if i >= 0]), 0)
+
+
+def _torso(*column: int) -> Callable[[mujoco.MjModel], tuple]:
+    return lambda model: (model.body(TORSO_BODY).id, *column)
+
+
+def _leg_dofs(model: mujoco.MjModel) -> tuple:
+    return (np.array([int(model.joint(name).dofadr[0]) for name in JOINT_NAMES]),)
+
+
+def _servos(*column) -> Callable[[mujoco.MjModel], tuple]:
+    return lambda model: (slice(None), *column)
+
+
+@dataclass(frozen=True)
+class PhysicsParam:
+    """One randomised physics quantity (a row of ``PHYSICS_PARAMS``)."""
+
+    name: str
+    """Its column in ``PhysicsRandomizer.params`` and the ``physics`` piece."""
+    range: str
+    """The ``Randomization`` field with its (min, max) range."""
+    default: tuple[float, float]
+    """The training range (that field's default)."""
+    nominal: float
+    """The model's own value (``Randomization.nominal()``)."""
+    centre: float
+    spread: float
+    """The ``physics`` piece holds (value - centre) / spread: about [-1, 1] in training."""
+    op: str
+    """How a drawn value v writes each target: "set" (v), "add" (model + v), "scale"
+    (model x v); "latency": v whole substeps of servo delay, no model field."""
+    targets: tuple[Target, ...] = ()
+    minimum: float | None = None
+    """Lower bound of the range's values (None: any)."""
+    above: bool = False
+    """The range's values must be strictly above ``minimum``."""
+    doc: str = ""
+
+
+#: The randomised physics, in the order of the draws and of the ``physics`` piece.
+PHYSICS_PARAMS: tuple[PhysicsParam, ...] = (
+    PhysicsParam("friction", "friction", (0.5, 1.3), NOMINAL_FRICTION, 0.9, 0.4, "set",
+                 (Target("geom_friction", _friction_geoms),), minimum=0.0,
+                 doc="Sliding friction of the feet and the ground (MuJoCo takes the larger of "
+                     "the two geoms'; both are set). The model's is 1.2."),
+    PhysicsParam("payload", "payload", (-0.05, 0.12), 0.0, 0.035, 0.085, "add",
+                 (Target("body_mass", _torso()),),
+                 doc="Mass added to the torso (0.56 kg of the robot's 0.8). kg."),
+    PhysicsParam("com_x", "com_offset", (-0.01, 0.01), 0.0, 0.0, 0.01, "add",
+                 (Target("body_ipos", _torso(0)),),
+                 doc="Shift of the torso's centre of mass along x and along y (each "
+                     "drawn). Metres."),
+    PhysicsParam("com_y", "com_offset", (-0.01, 0.01), 0.0, 0.0, 0.01, "add",
+                 (Target("body_ipos", _torso(1)),)),
+    PhysicsParam("kp_scale", "kp_scale", (0.85, 1.15), 1.0, 1.0, 0.15, "scale",
+                 (Target("actuator_gainprm", _servos(0)), Target("actuator_biasprm", _servos(1))),
+                 minimum=0.0, above=True,
+                 doc="Factor on the servos' position gain (kp = 6 N·m/rad)."),
+    PhysicsParam("force_scale", "force_scale", (0.85, 1.15), 1.0, 1.0, 0.15, "scale",
+                 (Target("actuator_forcerange", _servos()),), minimum=0.0, above=True,
+                 doc="Factor on the servos' torque limit (0.3 N·m)."),
+    PhysicsParam("damping_scale", "damping_scale", (0.8, 1.2), 1.0, 1.0, 0.2, "scale",
+                 (Target("dof_damping", _leg_dofs),), minimum=0.0,
+                 doc="Factor on the leg joints' damping."),
+    PhysicsParam("armature_scale", "armature_scale", (0.8, 1.2), 1.0, 1.0, 0.2, "scale",
+                 (Target("dof_armature", _leg_dofs),), minimum=0.0,
+                 doc="Factor on the leg joints' armature (rotor inertia)."),
+    PhysicsParam("latency", "latency", (0, 2), 0.0, 1.0, 1.0, "latency", minimum=0,
+                 doc="Delay of the servo targets, in physics substeps (at most one control "
+                     "period)."),
+)  # fmt: skip
+#: The model's own values of PHYSICS_PARAMS.
+NOMINAL_PARAMS = tuple(p.nominal for p in PHYSICS_PARAMS)
+_CENTRE = torch.tensor([p.centre for p in PHYSICS_PARAMS], dtype=torch.float64)
+_SPREAD = torch.tensor([p.spread for p in PHYSICS_PARAMS], dtype=torch.float64)
+_FIRST = {p.range: p for p in reversed(PHYSICS_PARAMS)}  # the first row of each range field
+_RANGES = tuple(dict.fromkeys(p.range for p in PHYSICS_PARAMS))
+
+
+def check_range(
     obj, name: str, low: float | None = None, above: bool = False, integer: bool = False
 ) -> None:
     """Raise a ValueError naming ``obj``'s field ``name`` unless it is a (min, max) pair
@@ -81,251 +162,137 @@ def _check_range(
         raise ValueError(f"{field} must be {'>' if above else '>='} {low:g}, got {value!r}")
 
 
-@dataclass(frozen=True)
-class Randomization:
+class _RandomizationMethods:
     """Per-env physics, drawn uniformly from each (min, max) at every reset.
 
-    A range with min == max sets that value for every env (the robustness
-    benchmark's held-out conditions); ``Randomization.nominal()`` changes nothing.
+    One field per range of ``PHYSICS_PARAMS`` (``friction``, ``payload``, ``com_offset``,
+    ``kp_scale``, ``force_scale``, ``damping_scale``, ``armature_scale``, ``latency``),
+    each a (min, max) pair defaulting to the training range. A range with min == max
+    sets that value for every env (the robustness benchmark's held-out conditions);
+    ``Randomization.nominal()`` changes nothing.
     """
 
-    friction: tuple[float, float] = (0.5, 1.3)
-    """Sliding friction of the feet and the ground (MuJoCo takes the larger of the
-    two geoms'; both are set). The model's is 1.2."""
-    payload: tuple[float, float] = (-0.05, 0.12)
-    """Mass added to the torso (0.56 kg of the robot's 0.8). kg."""
-    com_offset: tuple[float, float] = (-0.01, 0.01)
-    """Shift of the torso's centre of mass along x and along y (each drawn). Metres."""
-    kp_scale: tuple[float, float] = (0.85, 1.15)
-    """Factor on the servos' position gain (kp = 6 N·m/rad)."""
-    force_scale: tuple[float, float] = (0.85, 1.15)
-    """Factor on the servos' torque limit (0.3 N·m)."""
-    damping_scale: tuple[float, float] = (0.8, 1.2)
-    """Factor on the leg joints' damping."""
-    armature_scale: tuple[float, float] = (0.8, 1.2)
-    """Factor on the leg joints' armature (rotor inertia)."""
-    latency: tuple[int, int] = (0, 2)
-    """Delay of the servo targets, in physics substeps (at most one control period)."""
-
     def __post_init__(self) -> None:
-        _check_range(self, "friction", 0.0)
-        _check_range(self, "payload")
-        _check_range(self, "com_offset")
-        _check_range(self, "kp_scale", 0.0, above=True)
-        _check_range(self, "force_scale", 0.0, above=True)
-        _check_range(self, "damping_scale", 0.0)
-        _check_range(self, "armature_scale", 0.0)
-        _check_range(self, "latency", 0, integer=True)
+        for name in _RANGES:
+            row = _FIRST[name]
+            check_range(self, name, row.minimum, row.above, integer=row.op == "latency")
 
     @classmethod
-    def nominal(cls, **ranges) -> Randomization:
+    def nominal(cls, **ranges):
         """The model's own values (nothing randomised), with ``ranges`` overriding fields."""
-        base = dict(
-            friction=(NOMINAL_FRICTION,) * 2, payload=(0.0, 0.0), com_offset=(0.0, 0.0),
-            kp_scale=(1.0, 1.0), force_scale=(1.0, 1.0), damping_scale=(1.0, 1.0),
-            armature_scale=(1.0, 1.0), latency=(0, 0),
-        )  # fmt: skip
+        base = {name: (_FIRST[name].nominal,) * 2 for name in _RANGES}
+        base["latency"] = (0, 0)
         return cls(**(base | ranges))
 
 
-@dataclass(frozen=True)
-class Pushes:
-    """Horizontal velocity kicks to the torso, per env, at control-step boundaries."""
-
-    speed: tuple[float, float] = (0.0, 0.15)
-    """Magnitude of each kick, uniform in (min, max), in a uniformly random horizontal
-    direction. m/s (x 0.8 kg = the impulse in N·s)."""
-    interval: tuple[float, float] = (2.0, 5.0)
-    """Time from an episode's start or a kick to the next kick, uniform. Seconds."""
-
-    def __post_init__(self) -> None:
-        _check_range(self, "speed", 0.0)
-        _check_range(self, "interval", 0.0, above=True)
+def _range_field(name: str) -> tuple:
+    row = _FIRST[name]
+    return (name, tuple, dataclasses.field(default=row.default, metadata={"doc": row.doc}))
 
 
-@dataclass(frozen=True)
-class ObservationNoise:
-    """Half-widths of uniform noise added to the policy's observation, per block.
-
-    The sensor blocks apply wherever the spec's 65 sensor values appear (the pieces
-    ``sensors`` and ``observation``); the others name pieces. Contacts stay exact.
-    """
-
-    torso_pos: float = 0.005
-    """m."""
-    torso_quat: float = 0.01
-    torso_linvel: float = 0.015
-    """m/s (about 10% of the walking speed, like legged_gym's 0.1 m/s at ~1 m/s)."""
-    torso_angvel: float = 0.1
-    """rad/s."""
-    joint_pos: float = 0.01
-    """rad."""
-    joint_vel: float = 0.3
-    """rad/s."""
-    foot_pos: float = 0.002
-    """m."""
-    foot_vel: float = 0.03
-    """m/s."""
-    lateral_offset: float = 0.005
-    """m."""
-    gait: float = 0.0
-    """The adaptive task's gait parameters (normalised)."""
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if not (
-                isinstance(value, (int, float))
-                and not isinstance(value, bool)
-                and math.isfinite(value)
-                and value >= 0
-            ):
-                raise ValueError(f"ObservationNoise.{f.name} must be a scale >= 0, got {value!r}")
-
-    def sensor_scales(self) -> Tensor:
-        """Scale of each of the 65 sensor values. Shape: (65,) float64."""
-        scales = torch.zeros(OBS_DIM, dtype=torch.float64)
-        blocks = (
-            (OBS_POS, self.torso_pos), (OBS_QUAT, self.torso_quat),
-            (OBS_LINVEL, self.torso_linvel), (OBS_ANGVEL, self.torso_angvel),
-            (OBS_JOINT_POS, self.joint_pos), (OBS_JOINT_VEL, self.joint_vel),
-            (OBS_FOOT_POS, self.foot_pos), (OBS_FOOT_VEL, self.foot_vel),
-        )  # fmt: skip
-        for block, scale in blocks:
-            scales[block] = scale
-        return scales
+#: The config of physics randomisation: its fields are the ranges of PHYSICS_PARAMS.
+Randomization = dataclasses.make_dataclass(
+    "Randomization",
+    [_range_field(name) for name in _RANGES],
+    bases=(_RandomizationMethods,),
+    frozen=True,
+    namespace={"__module__": __name__, "__qualname__": "Randomization",
+               "__doc__": _RandomizationMethods.__doc__},
+)  # fmt: skip
+PhysicsRandomization = Randomization
 
 
-#: Contact friction of the model (the larger of foot 1.2 and ground 1.0).
-NOMINAL_FRICTION = 1.2
-#: The physics piece: each parameter as (value - centre) / spread, so that the
-#: training ranges map to about [-1, 1] whatever an evaluation draws.
-PHYSICS_PARAMS: tuple[tuple[str, float, float], ...] = (
-    ("friction", 0.9, 0.4),
-    ("payload", 0.035, 0.085),
-    ("com_x", 0.0, 0.01),
-    ("com_y", 0.0, 0.01),
-    ("kp_scale", 1.0, 0.15),
-    ("force_scale", 1.0, 0.15),
-    ("damping_scale", 1.0, 0.2),
-    ("armature_scale", 1.0, 0.2),
-    ("latency", 1.0, 1.0),
-)
-#: The model's own values of PHYSICS_PARAMS.
-NOMINAL_PARAMS = (NOMINAL_FRICTION, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0)
-_CENTRE = torch.tensor([c for _, c, _ in PHYSICS_PARAMS], dtype=torch.float64)
-_SPREAD = torch.tensor([s for _, _, s in PHYSICS_PARAMS], dtype=torch.float64)
-
-
-class Perturbations:
-    """The config's randomisation, pushes, latency and noise, applied to a core.
+class PhysicsRandomizer:
+    """A ``Randomization`` applied to N simulations: draws, model fields, latency.
 
     Args:
-        core: the core (its simulation built, not yet reset).
+        randomization: the config's ranges (None: the model's own physics).
+        model: the compiled model (its values are the nominal ones).
+        batch: the ``mujoco.batch.Batch`` of the N simulations.
+        num_envs: N.
+        decimation: physics substeps per env step.
 
     Raises:
         ValueError: naming the field, for a payload that leaves the torso without
             mass or a latency beyond one control period.
     """
 
-    def __init__(self, core) -> None:
-        cfg = core.config
-        self.core = core
-        self.randomization: Randomization | None = cfg.randomization
-        self.pushes: Pushes | None = cfg.pushes
-        self.noise: ObservationNoise | None = cfg.observation_noise
-        n, k = core.num_envs, core.decimation
-        model = core.model
+    def __init__(
+        self, randomization, model: mujoco.MjModel, batch, num_envs: int, decimation: int
+    ) -> None:
+        self.randomization = randomization
+        n, k = num_envs, decimation
         self.params = _CENTRE.new_tensor(NOMINAL_PARAMS).repeat(n, 1)
-        """Each env's physics, in PHYSICS_PARAMS order (raw values). Shape: (N, 9)."""
-        self.physics_draws = torch.zeros(n, dtype=torch.long)
-        self.push_draws = torch.zeros(n, dtype=torch.long)
+        """Each env's physics, in PHYSICS_PARAMS order (raw values). Shape: (N, P)."""
+        self.draws = torch.zeros(n, dtype=torch.long)
+        """Physics drawn so far by each env. Shape: (N,)."""
         self.latency = torch.zeros(n, dtype=torch.long)
         """Servo-target delay of each env. Shape: (N,). Substeps."""
-        self.push_countdown = torch.full((n,), torch.iinfo(torch.long).max, dtype=torch.long)
-        """Env steps until each env's next kick. Shape: (N,)."""
-        self.kick = torch.zeros(n, 2, dtype=torch.float64)
-        """Each env's next kick: the change of the torso's (x, y) velocity. Shape: (N, 2). m/s."""
-        self.pushes_done = 0
-        """Kicks given so far (all envs)."""
-        rand = self.randomization
-        if rand is not None:
-            torso = model.body(TORSO_BODY)
-            if float(torso.mass[0]) + rand.payload[0] <= 0:
-                raise ValueError(
-                    f"Randomization.payload {rand.payload!r} leaves the torso "
-                    f"({float(torso.mass[0]):g} kg) with no mass"
-                )
-            if rand.latency[1] > k:
-                raise ValueError(
-                    f"Randomization.latency {rand.latency!r} exceeds one control period "
-                    f"({k} substeps)"
-                )
-            self._torso = torso.id
-            ground = [model.geom(GROUND_GEOM).id]
-            if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, FLOOR_GEOM) >= 0:
-                ground.append(model.geom(FLOOR_GEOM).id)
-            self._friction_geoms = np.array(
-                ground + [model.geom(name).id for name in FOOT_GEOMS], dtype=np.int64
-            )
-            self._dofs = np.array(
-                [int(model.joint(name).dofadr[0]) for name in JOINT_NAMES], dtype=np.int64
-            )
-            batch = core.sim.batch
-            self._arrays = {
-                name: batch.expand(name)
-                for name in (
-                    "geom_friction", "body_mass", "body_ipos", "actuator_gainprm",
-                    "actuator_biasprm", "actuator_forcerange", "dof_damping", "dof_armature",
-                )
-            }  # fmt: skip
-            self._nominal = {name: np.array(getattr(model, name)) for name in self._arrays}
         self._held = torch.zeros(n, k, len(JOINT_NAMES), dtype=torch.float64)
         """Each env's servo targets of the last control period (the delayed ones come
         from its end). Shape: (N, K, 12)."""
-        self._generator = torch.Generator()
-        self._noise_cache: dict[str, Tensor] = {}
-        self._scale_cache: dict[str, Tensor | None] = {}  # per piece: fixed by the config
+        self._batch = batch
+        self._seed = 0
+        if randomization is None:
+            return
+        torso = model.body(TORSO_BODY)
+        if float(torso.mass[0]) + randomization.payload[0] <= 0:
+            raise ValueError(
+                f"Randomization.payload {randomization.payload!r} leaves the torso "
+                f"({float(torso.mass[0]):g} kg) with no mass"
+            )
+        if randomization.latency[1] > k:
+            raise ValueError(
+                f"Randomization.latency {randomization.latency!r} exceeds one control period "
+                f"({k} substeps)"
+            )
+        ranges = [getattr(randomization, p.range) for p in PHYSICS_PARAMS]
+        self._low = torch.tensor([r[0] for r in ranges], dtype=torch.float64)
+        self._high = torch.tensor([r[1] for r in ranges], dtype=torch.float64)
+        arrays = {t.field: None for p in PHYSICS_PARAMS for t in p.targets}
+        for name in arrays:
+            expanded = batch.expand(name)
+            flat = expanded.reshape(n, -1)
+            assert np.shares_memory(flat, expanded), f"{name}: expanded rows are not a view"
+            arrays[name] = flat
+        self._writes = []
+        """(column, op, rows of the env's flat field, flat indices, nominal values)."""
+        for column, param in enumerate(PHYSICS_PARAMS):
+            for target in param.targets:
+                nominal = np.asarray(getattr(model, target.field))
+                index = np.arange(nominal.size).reshape(nominal.shape)[target.select(model)]
+                index = np.asarray(index).reshape(-1)
+                self._writes.append(
+                    (column, param.op, arrays[target.field], index, nominal.reshape(-1)[index])
+                )
 
     def seed(self, seed: int) -> None:
-        """Restart the draws (the core was reseeded)."""
-        self.physics_draws.zero_()
-        self.push_draws.zero_()
-        key = int(rng.keys(seed, NOISE_STREAM, 0))
-        self._generator.manual_seed(key & (2**63 - 1))
-        self._noise_cache.clear()
+        """Key the draws by ``seed`` (env i draws from seed + i) and restart them."""
+        self._seed = seed
+        self.draws.zero_()
 
-    # ------------------------------------------------------------ resets
     def reset(self, rows: Tensor, settle_tail: np.ndarray) -> None:
-        """Draw new physics and the first kick time for ``rows`` (before they settle).
+        """Draw new physics for ``rows`` (before they settle) and write them into their
+        simulations.
 
         Args:
             rows: env indices. Shape: (M,).
-            settle_tail: the last K servo targets of settling. Shape: (K, 12).
+            settle_tail: the last K servo targets of settling: the delayed targets the
+                first step applies. Shape: (K, 12).
         """
-        if self.randomization is not None:
-            self._draw_physics(rows)
-            self._held[rows] = torch.from_numpy(settle_tail)
-        if self.pushes is not None:
-            self._schedule_push(rows)
-
-    def _draw_physics(self, rows: Tensor) -> None:
-        rand = self.randomization
-        u = rng.uniform_rows(self.core.seed_value, rows, PHYSICS_STREAM, self.physics_draws, 9)
-        ranges = (
-            rand.friction, rand.payload, rand.com_offset, rand.com_offset, rand.kp_scale,
-            rand.force_scale, rand.damping_scale, rand.armature_scale,
-        )  # fmt: skip
-        low = torch.tensor([r[0] for r in ranges], dtype=torch.float64)
-        high = torch.tensor([r[1] for r in ranges], dtype=torch.float64)
-        values = low + u[:, :8] * (high - low)
-        # latency: a whole number of substeps, each equally likely
-        span = rand.latency[1] - rand.latency[0] + 1
-        latency = rand.latency[0] + torch.floor(u[:, 8] * span).to(torch.long)
-        self.params[rows, :8] = values
-        self.params[rows, 8] = latency.to(torch.float64)
-        self.latency[rows] = latency
+        if self.randomization is None:
+            return
+        u = rng.uniform_rows(self._seed, rows, PHYSICS_STREAM, self.draws, len(PHYSICS_PARAMS))
+        values = self._low + u * (self._high - self._low)
+        for column, param in enumerate(PHYSICS_PARAMS):
+            if param.op == "latency":  # a whole number of substeps, each equally likely
+                low, high = getattr(self.randomization, param.range)
+                whole = low + torch.floor(u[:, column] * (high - low + 1)).to(torch.long)
+                values[:, column] = whole.to(torch.float64)
+                self.latency[rows] = whole
+        self.params[rows] = values
         self.apply(rows)
+        self._held[rows] = torch.from_numpy(settle_tail)
 
     def apply(self, rows: Tensor) -> None:
         """Write ``params`` of ``rows`` into their simulations (and derived constants)."""
@@ -333,48 +300,14 @@ class Perturbations:
             return
         ids = rows.numpy()
         p = self.params[rows].numpy()
-        a, nom = self._arrays, self._nominal
-        a["geom_friction"][ids[:, None], self._friction_geoms, 0] = p[:, 0:1]
-        t = self._torso
-        a["body_mass"][ids, t] = nom["body_mass"][t] + p[:, 1]
-        a["body_ipos"][ids, t, 0] = nom["body_ipos"][t, 0] + p[:, 2]
-        a["body_ipos"][ids, t, 1] = nom["body_ipos"][t, 1] + p[:, 3]
-        kp = p[:, 4:5]
-        a["actuator_gainprm"][ids, :, 0] = nom["actuator_gainprm"][None, :, 0] * kp
-        a["actuator_biasprm"][ids, :, 1] = nom["actuator_biasprm"][None, :, 1] * kp
-        a["actuator_forcerange"][ids] = nom["actuator_forcerange"][None] * p[:, 5, None, None]
-        a["dof_damping"][ids[:, None], self._dofs] = nom["dof_damping"][self._dofs] * p[:, 6:7]
-        a["dof_armature"][ids[:, None], self._dofs] = nom["dof_armature"][self._dofs] * p[:, 7:8]
-        self.core.sim.batch.set_const(ids.astype(np.int32))
-
-    def _schedule_push(self, rows: Tensor) -> None:
-        """Draw the next kick of each env of ``rows``: when (from now) and how hard."""
-        low, high = self.pushes.interval
-        u = rng.uniform_rows(self.core.seed_value, rows, PUSH_STREAM, self.push_draws, 3)
-        seconds = low + u[:, 0] * (high - low)
-        steps = torch.ceil(seconds / self.core.control_dt).to(torch.long).clamp(min=1)
-        self.push_countdown[rows] = steps
-        speed = self.pushes.speed[0] + u[:, 1] * (self.pushes.speed[1] - self.pushes.speed[0])
-        angle = u[:, 2] * (2.0 * math.pi)
-        self.kick[rows] = torch.stack(
-            (speed * exactmath.cos(angle), speed * exactmath.sin(angle)), dim=-1
-        )
-
-    # ------------------------------------------------------------ steps
-    def before_step(self) -> None:
-        """Kick the envs whose time has come (at this control-step boundary)."""
-        self._noise_cache.clear()
-        if self.pushes is None:
-            return
-        self.push_countdown -= 1
-        due = self.push_countdown <= 0
-        if not bool(due.any()):
-            return
-        rows = due.nonzero().squeeze(-1)
-        ids = rows.numpy()
-        self.core.sim.qvel[ids, 0:2] += self.kick[rows].numpy()
-        self.pushes_done += ids.size
-        self._schedule_push(rows)
+        for column, op, flat, index, nominal in self._writes:
+            value = p[:, column : column + 1]
+            if op == "add":
+                value = nominal[None, :] + value
+            elif op == "scale":
+                value = nominal[None, :] * value
+            flat[ids[:, None], index[None, :]] = value
+        self._batch.set_const(ids.astype(np.int32))
 
     def delay(self, ctrl: np.ndarray) -> np.ndarray:
         """The servo targets each env applies, ``latency`` substeps late: the end of
@@ -389,52 +322,13 @@ class Perturbations:
         self._held.copy_(current)
         return np.ascontiguousarray(applied.numpy())
 
-    # ------------------------------------------------------------ pieces
     def normalised_params(self) -> Tensor:
-        """The physics piece: each parameter centred and scaled. Shape: (N, 9)."""
+        """The physics piece: each parameter centred and scaled. Shape: (N, P)."""
         return (self.params - _CENTRE) / _SPREAD
-
-    def noisy(self, name: str, value: Tensor) -> Tensor:
-        """``value`` of the piece ``name`` plus this step's noise (the same noise for
-        every read within one step). Shape: (N, D) -> (N, D)."""
-        if self.noise is None:
-            return value
-        if name not in self._scale_cache:
-            self._scale_cache[name] = self._scales(name, value.shape[-1])
-        scales = self._scale_cache[name]
-        if scales is None:
-            return value
-        noise = self._noise_cache.get(name)
-        if noise is None:
-            u = torch.rand(value.shape, dtype=torch.float64, generator=self._generator)
-            noise = (2.0 * u - 1.0) * scales
-            self._noise_cache[name] = noise
-        return value + noise
-
-    def _scales(self, name: str, width: int) -> Tensor | None:
-        """Noise half-width of each value of the piece ``name``; None for an exact piece."""
-        if name in ("observation", "observation_from_start"):
-            pieces = self.core.task.pieces()
-            parts = [
-                self._scales(piece, pieces[piece].size) for piece in self.core.task.observation
-            ]
-            sizes = [pieces[piece].size for piece in self.core.task.observation]
-            zeros = [torch.zeros(size, dtype=torch.float64) for size in sizes]
-            scales = torch.cat([z if p is None else p for p, z in zip(parts, zeros, strict=True)])
-            return scales if bool(scales.any()) else None
-        if name == "sensors":
-            return self.noise.sensor_scales()
-        scale = getattr(self.noise, name) if name in _NOISE_PIECES else 0.0
-        return torch.full((width,), float(scale), dtype=torch.float64) if scale > 0 else None
 
     def state(self) -> dict[str, Tensor]:
         """Per-env tensors to keep when the core is pickled."""
         return {
-            "params": self.params, "physics_draws": self.physics_draws,
-            "push_draws": self.push_draws, "latency": self.latency,
-            "push_countdown": self.push_countdown, "kick": self.kick, "held": self._held,
+            "params": self.params, "draws": self.draws, "latency": self.latency,
+            "held": self._held,
         }  # fmt: skip
-
-
-#: Pieces with a scale of their own in ObservationNoise.
-_NOISE_PIECES = ("lateral_offset", "gait")

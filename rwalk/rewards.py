@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from torch import Tensor
 
@@ -125,6 +125,10 @@ class StepState(NamedTuple):
     """Torso y at the episode's start. Shape: (N,). Metres."""
     weights: RewardWeights
     """The config's weights (for the contact scores)."""
+    sources: Any = None
+    """Everything else a term may read: the core's parts (``rwalk.observations.Sources``:
+    sensors, episodes, drawn physics, terrain, task, simulation), as batched tensors
+    (N = 1 in the one-env float pipeline). A term that needs new data reads it here."""
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ __all__ = ["AdaptiveGaitEnv", "AdaptiveGaitVecEnv", "ResidualWalkEnv", "Residual
 
 def __getattr__(name: str):
     if name in ("ResidualWalkVecEnv", "AdaptiveGaitVecEnv"):
-        from rwalk.envs import vec_env
+        from rwalk.envs import torchrl_env as vec_env
 
         return getattr(vec_env, name)
     raise AttributeError(f"module 'rwalk.envs' has no attribute {name!r}")

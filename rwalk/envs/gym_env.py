@@ -13,6 +13,7 @@ import torch
 from rwalk.config import EnvConfig
 from rwalk.constants import OBS_POS
 from rwalk.core import Core
+from rwalk.envs.single_step import SingleStep
 from rwalk.gait import GaitParameters
 from rwalk.tasks import AdaptiveGaitConfig, GaitBounds
 from rwalk.tasks.adaptive_gait import ADAPTED
@@ -114,6 +115,9 @@ class ResidualWalkEnv(gym.Env):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
         self.core = Core(config, 1, seed=seed, task=self.task)
+        self.single_step = SingleStep(self.core) if SingleStep.supports(self.core) else None
+        """The core's one-env step on numpy and floats (``rwalk.envs.single_step``), where
+        the task has one; None: steps go through the batched pipeline with N = 1."""
         task = self.core.task
         self.observation_space = gym.spaces.Box(
             -np.inf, np.inf, (task.observation_dim,), np.float32
@@ -162,10 +166,10 @@ class ResidualWalkEnv(gym.Env):
                 f"action must have shape ({dim},) ({self.core.task.action_layout}), got "
                 f"{array.shape}"
             )
-        if not self.core.has_single_step:
+        if self.single_step is None:
             return self._batched_step(array)
         # The core's one-env step: numpy and floats, the same bits as its batched step.
-        result = self.core.step_single(array)
+        result = self.single_step.step(array)
         obs = result.obs
         info = {
             "reward_components": result.terms,
@@ -201,7 +205,7 @@ class ResidualWalkEnv(gym.Env):
         )
 
     def _observation(self) -> np.ndarray:
-        return self.core.task.spec_observation()[0].numpy().astype(np.float32)
+        return self.core.piece("observation")[0].numpy().astype(np.float32)
 
     def _info(self) -> dict[str, float]:
         core = self.core

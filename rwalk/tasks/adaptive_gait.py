@@ -40,7 +40,8 @@ from torch import Tensor
 from rwalk.config import EnvConfig
 from rwalk.constants import ACTION_DIM
 from rwalk.gait import BezierGaitController, GaitParameters, GaitShape, advance_phase
-from rwalk.tasks.base import ObsPiece, Task
+from rwalk.observations import ObsPiece
+from rwalk.tasks.base import Task
 
 #: Random stream of the starting parameters with ``start_spread`` (see ``rwalk.rng``).
 START_GAIT_STREAM = "gait_start"
@@ -163,12 +164,12 @@ class AdaptiveGait(Task):
     )
     observation = ("sensors", "gait")
 
-    def __init__(self, core) -> None:
-        super().__init__(core)
-        cfg: AdaptiveGaitConfig = core.config
+    def __init__(self, config: AdaptiveGaitConfig, world, num_envs: int) -> None:
+        super().__init__(config, world, num_envs)
+        cfg = config
         for field_name, gait in cfg.corner_gaits():
             try:
-                BezierGaitController(gait, core.geometry, dt=core.dt)
+                BezierGaitController(gait, world.geometry, dt=world.dt)
             except ValueError as error:
                 raise ValueError(
                     f"GaitBounds.{field_name}={getattr(cfg.bounds, field_name)!r}: the legs "
@@ -180,7 +181,7 @@ class AdaptiveGait(Task):
         self.start = torch.tensor(
             [getattr(cfg.gait, name) for name in ADAPTED], dtype=torch.float64
         )
-        n = core.num_envs
+        n = num_envs
         self.params = self.start.repeat(n, 1)
         """Current step_height, step_length, cycle_time, body_height. Shape: (N, 4)."""
         self.start_draws = torch.zeros(n, dtype=torch.long)
@@ -192,38 +193,38 @@ class AdaptiveGait(Task):
         pieces = super().pieces()
         pieces["gait"] = ObsPiece(
             len(ADAPTED),
-            lambda task: (task.params - task.centre) / task.half_width,
+            lambda s: (s.task.params - s.task.centre) / s.task.half_width,
             "step_height, step_length, cycle_time, body_height, each (v - centre) / half_width",
+            noise=lambda cfg: cfg.gait,
         )
         return pieces
 
-    def seed(self) -> None:
-        super().seed()
+    def seed(self, seed: int) -> None:
+        super().seed(seed)
         self.start_draws.zero_()
 
     def reset(self, rows: Tensor) -> None:
-        core = self.core
         self.params[rows] = self.start
-        spread = core.config.start_spread
+        spread = self.config.start_spread
         if spread > 0:
             u = 2.0 * self.uniform(rows, START_GAIT_STREAM, self.start_draws, len(ADAPTED)) - 1.0
             offset = u * (spread * (self.high - self.low))
             self.params[rows] = torch.minimum(
                 torch.maximum(self.start + offset, self.low), self.high
             )
-        self.gait_phase[rows] = core.settled_tick / core.controller.period
+        self.gait_phase[rows] = self.world.settled_tick / self.world.controller.period
 
     def act(self, action: Tensor) -> tuple[np.ndarray, Tensor]:
-        core = self.core
-        n, k = core.num_envs, core.decimation
+        world = self.world
+        n, k = self.num_envs, world.decimation
         params = self.params
         params.copy_(torch.minimum(torch.maximum(params + action[:, :4] * self.delta, self.low),
                                    self.high))  # fmt: skip
-        residuals = action[:, 4:].reshape(n, 4, 3) * core.config.residual_scale
-        phases = advance_phase(self.gait_phase, params[:, 2], core.dt, k)
+        residuals = action[:, 4:].reshape(n, 4, 3) * self.config.residual_scale
+        phases = advance_phase(self.gait_phase, params[:, 2], world.dt, k)
         shape = GaitShape(params[:, 0], params[:, 1], params[:, 3])
-        ctrl = core.controller.joint_targets_at(phases[:, :k], shape, residuals)
-        swing = core.controller.swing_at(phases[:, k - 1])
+        ctrl = world.controller.joint_targets_at(phases[:, :k], shape, residuals)
+        swing = world.controller.swing_at(phases[:, k - 1])
         self.gait_phase.copy_(phases[:, k])
         return np.ascontiguousarray(ctrl.numpy()), swing
 
@@ -232,7 +233,7 @@ class AdaptiveGait(Task):
         return self.gait_phase
 
     def phase_features(self) -> Tensor:
-        return self.core.controller.phase_features_at(self.gait_phase)
+        return self.world.controller.phase_features_at(self.gait_phase)
 
     def gait_params(self) -> Tensor:
         """Current parameters in SI units. Shape: (N, 4)."""

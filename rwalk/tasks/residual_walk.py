@@ -1,7 +1,8 @@
 """The residual-walk task (spec: ResidualWalkEnv.md): 12 foot residuals on a fixed trot.
 
 The gait is the controller's table, looked up by an integer tick per env: the
-fast path, and the same bits as the single env's float pipeline (``rwalk.single``).
+fast path, and the same bits as the single env's float pipeline
+(``rwalk.envs.single_step``).
 """
 
 from __future__ import annotations
@@ -22,32 +23,32 @@ class ResidualWalk(Task):
     action_layout = "12 foot residuals (FL, FR, RL, RR x x, y, z)"
     single_step = True
 
-    def __init__(self, core) -> None:
-        super().__init__(core)
-        self.tick = torch.zeros(core.num_envs, dtype=torch.long)
+    def __init__(self, config, world, num_envs: int) -> None:
+        super().__init__(config, world, num_envs)
+        self.tick = torch.zeros(num_envs, dtype=torch.long)
         """Physics substeps since gait phase 0, modulo the cycle, at the start of the
         next step. Shape: (N,)."""
 
     def reset(self, rows: Tensor) -> None:
-        self.tick[rows] = self.core.settled_tick
+        self.tick[rows] = self.world.settled_tick
 
     def act(self, action: Tensor) -> tuple[np.ndarray, Tensor]:
-        core = self.core
-        residuals = action.view(core.num_envs, 4, 3) * core.config.residual_scale
-        k = core.decimation
-        ctrl, _ = core.controller.joint_targets(self.tick, k, residuals)
-        swing = core.controller.is_swing(self.tick + (k - 1))
+        controller = self.world.controller
+        residuals = action.view(self.num_envs, 4, 3) * self.config.residual_scale
+        k = self.world.decimation
+        ctrl, _ = controller.joint_targets(self.tick, k, residuals)
+        swing = controller.is_swing(self.tick + (k - 1))
         # In place, like every state update of a step: callers step inside
         # torch.inference_mode (rsl-rl does) and reset outside it.
-        self.tick.add_(k).remainder_(core.controller.period)
+        self.tick.add_(k).remainder_(controller.period)
         return ctrl.numpy(), swing
 
     @property
     def phase(self) -> Tensor:
-        return self.core.controller.phase(self.tick)
+        return self.world.controller.phase(self.tick)
 
     def phase_features(self) -> Tensor:
-        return self.core.controller.phase_features(self.tick)
+        return self.world.controller.phase_features(self.tick)
 
     def state(self) -> dict[str, Tensor]:
         return super().state() | {"tick": self.tick}

@@ -1,5 +1,5 @@
-"""Adapters of the batched env to training libraries."""
+"""Adapters of the batched env to training libraries (``rwalk.rl``; kept for old imports)."""
 
-from rwalk.wrappers.rsl_rl import RslRlVecEnv
+from rwalk.rl.rsl_rl_env import RslRlVecEnv
 
 __all__ = ["RslRlVecEnv"]

@@ -1,6 +1,6 @@
-"""The core's step for one env, near the cost of its physics alone.
+"""The core's step for one env, near the cost of its physics alone (the Gymnasium view's).
 
-``ResidualWalkCore.step`` spends most of a one-env step in the fixed cost of
+``Core.step`` spends most of a one-env step in the fixed cost of
 some 150 small torch calls (~1.4 µs each), against ~100 µs of physics for five
 4 ms substeps. ``SingleStep`` runs the same pipeline with the same functions
 (``leg_ik``, ``quat_to_rpy``, the declared reward terms, ``fallen``: each written once
@@ -15,17 +15,15 @@ sums) through numpy views of its tensors, so the two steps can be mixed freely.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 import torch
 
 from rwalk.constants import ACTION_DIM, OBS_CONTACT
+from rwalk.core import Core
 from rwalk.kinematics import leg_ik
 from rwalk.rewards import StepState, evaluate, fallen, quat_to_rpy
-
-if TYPE_CHECKING:
-    from rwalk.core import ResidualWalkCore
 
 #: Action dtypes taken without conversion checks (torch's step accepts these too).
 _FAST_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
@@ -54,13 +52,21 @@ class SingleStepResult(NamedTuple):
 
 
 class SingleStep:
-    """``ResidualWalkCore.step`` for a core of one env, on numpy and floats.
+    """``Core.step`` for a core of one env, on numpy and floats.
 
     Args:
-        core: a core with ``num_envs == 1``.
+        core: a core that ``SingleStep.supports``.
     """
 
-    def __init__(self, core: ResidualWalkCore) -> None:
+    @staticmethod
+    def supports(core: Core) -> bool:
+        """Whether ``SingleStep`` can step ``core``: one env of a task with a float
+        pipeline (``Task.single_step``: the residual task), without velocity commands."""
+        return (
+            core.num_envs == 1 and core.task.single_step and core.config.command_range is None
+        )
+
+    def __init__(self, core: Core) -> None:
         if core.num_envs != 1:
             raise ValueError(f"SingleStep needs a core of 1 env, got num_envs={core.num_envs}")
         self.core = core
@@ -132,8 +138,13 @@ class SingleStep:
             y=values[1],
             y0=y0,
             weights=cfg.reward_weights,
+            sources=core.observations.sources,
         )
-        terms = evaluate(core.terms, state)
+        # A term reading the core's parts (state.sources) gives a tensor of one env.
+        terms = {
+            name: term if isinstance(term, float) else float(term[0])
+            for name, term in evaluate(core.terms, state).items()
+        }
         if diverged:
             terms = dict.fromkeys(terms, 0.0)
             forward_velocity = 0.0

@@ -1,4 +1,5 @@
-"""The batched tasks as TorchRL ``EnvBase``s: ``ResidualWalkVecEnv``, ``AdaptiveGaitVecEnv``."""
+"""The batched tasks as TorchRL ``EnvBase``s: ``BatchedEnv`` (any task), and by task
+``ResidualWalkVecEnv`` and ``AdaptiveGaitVecEnv``."""
 
 from __future__ import annotations
 
@@ -11,12 +12,12 @@ from torchrl.envs import EnvBase
 
 from rwalk.config import EnvConfig
 from rwalk.core import Core
-from rwalk.tasks import get_task
+from rwalk.tasks.base import Task
+from rwalk.tasks.registry import get_task
 
 
-class ResidualWalkVecEnv(EnvBase):
-    """N envs of a task stepped together (``batch_size=(num_envs,)``); the
-    residual-walk task unless ``task`` names another.
+class BatchedEnv(EnvBase):
+    """N envs of a task stepped together (``batch_size=(num_envs,)``).
 
     Keys (all float32 unless noted; N = num_envs):
 
@@ -24,25 +25,27 @@ class ResidualWalkVecEnv(EnvBase):
     - ``phase`` (N, 2): sin and cos of 2π x the gait phase (not in the spec).
     - ``lateral_offset`` (N, 1): y - y0, the drift the lateral penalty sees (not in the spec).
     - any other extra piece of the task (``command`` of a commanded adaptive task).
-    - ``action`` (N, 12) in [-1, 1]: foot residuals FL, FR, RL, RR x (x, y, z); clipped.
+    - ``action`` (N, action_dim) in [-1, 1], as the task lays it out (residual_walk: 12
+      foot residuals FL, FR, RL, RR x (x, y, z)); clipped.
     - ``reward`` (N, 1), ``done`` / ``terminated`` / ``truncated`` (N, 1) bool.
     - ``("reward_terms", name)`` (N, 1): each weighted reward term; they sum to ``reward``.
     - ``diverged`` (N, 1) bool: the simulation blew up this step (also terminated).
 
     Partial resets follow the ``"_reset"`` mask; reset envs are settled in one
     batched rollout. Seeding goes through ``set_seed``: env i of a batch seeded
-    s starts exactly like ``ResidualWalkEnv(seed=s + i)``.
+    s starts exactly like a single env of the task seeded s + i.
 
     Args:
         num_envs: N.
-        config: the task; defaults to the spec's.
+        config: the task's config; None: the task's defaults (the spec's).
         seed: seed for the starts; None draws one from the OS.
         device: only "cpu" (the simulation runs on the CPU).
-        task: registry name; None uses the class's (``residual_walk`` here).
+        task: a registry name or ``Task`` class; None: the class's ``task``, else the task
+            whose config class ``config`` is.
     """
 
-    #: The task when none is named.
-    task: ClassVar[str] = "residual_walk"
+    #: The task when none is named (None: the config's).
+    task: ClassVar[str | None] = None
 
     def __init__(
         self,
@@ -50,14 +53,14 @@ class ResidualWalkVecEnv(EnvBase):
         config: EnvConfig | None = None,
         seed: int | None = None,
         device: str | torch.device = "cpu",
-        task: str | None = None,
+        task: str | type[Task] | None = None,
     ) -> None:
         if torch.device(device).type != "cpu":
             raise ValueError(f"{type(self).__name__} runs on the CPU only, got device {device!r}")
-        task_type = get_task(task or self.task)
-        self.core = Core(
-            config or task_type.config_type(), num_envs, seed=seed, task=task_type.name
-        )
+        task = task or self.task
+        if config is None:
+            config = (get_task(task) if isinstance(task, str) else task or Task).config_type()
+        self.core = Core(config, num_envs, seed=seed, task=task)
         super().__init__(device="cpu", batch_size=torch.Size([num_envs]))
         self.rng = torch.Generator()
         if seed is not None:
@@ -161,10 +164,17 @@ class ResidualWalkVecEnv(EnvBase):
         self.rng.manual_seed(used)
 
 
-class AdaptiveGaitVecEnv(ResidualWalkVecEnv):
+class ResidualWalkVecEnv(BatchedEnv):
+    """N residual-walk envs (ResidualWalkEnv.md) stepped together: ``BatchedEnv`` of the
+    residual task unless ``task`` names another."""
+
+    task: ClassVar[str | None] = "residual_walk"
+
+
+class AdaptiveGaitVecEnv(BatchedEnv):
     """N adaptive-gait envs (AdaptiveGaitEnv.md) stepped together.
 
-    Keys as ``ResidualWalkVecEnv``, but ``observation`` is (N, 69) (the 65 values,
+    Keys as ``BatchedEnv``, but ``observation`` is (N, 69) (the 65 values,
     then the four gait parameters normalised to [-1, 1]) and ``action`` (N, 16)
     (four gait deltas, then the 12 residuals). With ``command_range`` set in the
     config, ``command`` (N, 1) holds each episode's target velocity (m/s).

@@ -1,4 +1,4 @@
-"""``RslRlVecEnv``: rsl-rl-lib 5.x's ``VecEnv`` over a ``ResidualWalkVecEnv``."""
+"""``RslRlVecEnv``: rsl-rl-lib 5.x's ``VecEnv`` over a batched env of any task."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from rwalk import episodes
-from rwalk.envs.vec_env import ResidualWalkVecEnv
+from rwalk.envs.torchrl_env import BatchedEnv
 
 
 class RslRlVecEnv(VecEnv):
@@ -44,7 +44,7 @@ class RslRlVecEnv(VecEnv):
 
     def __init__(
         self,
-        env: ResidualWalkVecEnv,
+        env: BatchedEnv,
         policy_obs: tuple[str, ...] | None = None,
         critic_obs: tuple[str, ...] | None = None,
         reward_scale: float = 1.0,
@@ -81,7 +81,7 @@ class RslRlVecEnv(VecEnv):
     def get_observations(self) -> TensorDict:
         core = self.core
         pieces = {name: core.piece(name) for names in self.groups.values() for name in names}
-        noisy = core.perturb.noisy
+        noisy = core.observations.noisy
         groups = {
             "policy": [noisy(name, pieces[name]) for name in self.groups["policy"]],
             "critic": [pieces[name] for name in self.groups["critic"]],
@@ -118,10 +118,19 @@ class RslRlVecEnv(VecEnv):
         log["Episode/velocity_error"] = (velocity - stats["target_velocity"]).abs().mean()
         log["Episode/diverged"] = stats["diverged"].double().mean()
         log["Perf/settle_share"] = torch.tensor(self.core.settle_share)
-        levels = self.core.config.terrain_levels
-        if levels is not None:
-            level = self.core.terrain_level.to(torch.float64)
-            log["Curriculum/terrain_level"] = level.mean()
-            for index, kind in enumerate(levels.kinds):
-                log[f"Curriculum/level_{kind}"] = level[self.core.terrain_kind == index].mean()
-        return log
+        return log | self.core.curriculum.log()
+
+    # ------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """The env's state a checkpoint keeps beside the policy (the hook ``rwalk.rl.runner``
+        calls at each save): the terrain curriculum's levels (empty without a map)."""
+        return self.core.curriculum.checkpoint()
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> str | None:
+        """Go on from a checkpoint's ``state_dict()``; returns why it could not (another
+        number of envs), else None.
+
+        Raises:
+            ValueError: naming the field, if the state is not what ``state_dict`` writes.
+        """
+        return self.core.curriculum.load_checkpoint(state)

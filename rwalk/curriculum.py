@@ -1,0 +1,149 @@
+"""The terrain curriculum: each env's level and kind of tile on a map of terrain levels.
+
+At each reset of an env that walked an episode, ``move`` takes it a level up or
+down by how far it walked against the distance its target velocity asks for
+(``rwalk.levels.update_levels``); envs promoted past the top restart at a level
+drawn from the key (seed + i, "terrain_level", k) of ``rwalk.rng``. ``origins``
+says where each env starts: its tile's pad on a map, else the config's start
+position. ``state``/``load_state`` carry the levels through checkpoints, so a
+resumed training goes on with its curriculum.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from rwalk import rng
+from rwalk.levels import TerrainLevels, TerrainMap, update_levels
+
+#: Random stream of the levels of envs that pass the top of a terrain map.
+LEVEL_STREAM = "terrain_level"
+
+
+class Curriculum:
+    """Levels, kinds and start origins of N envs.
+
+    Args:
+        levels: the map's config (None: no map, every env at level 0 of kind 0).
+        terrain_map: the generated map of ``levels`` (None without one).
+        num_envs: N.
+        start_position: (x, y) of every start without a map. Metres.
+    """
+
+    def __init__(
+        self,
+        levels: TerrainLevels | None,
+        terrain_map: TerrainMap | None,
+        num_envs: int,
+        start_position: tuple[float, float],
+    ) -> None:
+        self.levels = levels
+        self.terrain_map = terrain_map
+        self._start = np.asarray(start_position, dtype=np.float64)
+        kinds = len(levels.kinds) if levels is not None else 1
+        self.terrain_level = torch.full(
+            (num_envs,), levels.start_level if levels is not None else 0, dtype=torch.long
+        )
+        """Each env's terrain level (0 without a map). Shape: (N,)."""
+        self.terrain_kind = torch.arange(num_envs, dtype=torch.long) % kinds
+        """Each env's kind of tile, an index into ``levels.kinds``. Shape: (N,)."""
+        self.draws = torch.zeros(num_envs, dtype=torch.long)
+        """Levels drawn so far by each env (recycled past the top). Shape: (N,)."""
+        self._seed = 0
+
+    def seed(self, seed: int) -> None:
+        """Key the level draws by ``seed`` (env i draws from seed + i) and restart them."""
+        self._seed = seed
+        self.draws.zero_()
+
+    def move(
+        self,
+        rows: Tensor,
+        walked: Tensor,
+        distance: Tensor,
+        fell: Tensor,
+        target: Tensor | float,
+        control_dt: float,
+    ) -> None:
+        """Move the envs of ``rows`` that walked an episode a level up or down.
+
+        Args:
+            rows: env indices. Shape: (M,).
+            walked, distance, fell: every env's steps walked, distance (m) and fall
+                in the episode now ending. Each shape: (N,).
+            target: velocity each env tracked (m/s): a float, or per env (N,).
+        """
+        levels = self.levels
+        if levels is None or not levels.curriculum:
+            return
+        rows = rows[walked[rows] > 0]  # first resets end no episode
+        if rows.numel() == 0:
+            return
+        target = target[rows] if isinstance(target, Tensor) else target
+        expected = target * walked[rows].to(torch.float64) * control_dt
+        redraw = None
+        if levels.recycle:  # env i's k-th draw from the key (seed + i, LEVEL_STREAM, k)
+            u = rng.uniform_rows(self._seed, rows, LEVEL_STREAM, self.draws, 1)[:, 0]
+            redraw = torch.floor(u * levels.levels).to(torch.long)
+        self.terrain_level[rows] = update_levels(
+            self.terrain_level[rows], distance[rows], expected, fell[rows], levels, redraw
+        )
+
+    def origins(self, ids: np.ndarray | None) -> np.ndarray:
+        """Nominal start (x, y) of envs ``ids``: their tiles' pads on a map, else the
+        start position; None: where the settled-start pool starts (the pad of tile (0, 0)).
+        Shape: (M, 2) or (2,). Metres."""
+        if self.terrain_map is None:
+            return self._start
+        if ids is None:
+            return np.asarray(self.terrain_map.origin(0, 0), dtype=np.float64)
+        return self.terrain_map.origins(
+            self.terrain_level[ids].numpy(), self.terrain_kind[ids].numpy()
+        )
+
+    def log(self) -> dict[str, Tensor]:
+        """TensorBoard scalars: ``Curriculum/terrain_level`` (mean level of all envs) and
+        ``Curriculum/level_<kind>`` (of the envs on each kind); empty without a map."""
+        if self.terrain_map is None:
+            return {}
+        level = self.terrain_level.to(torch.float64)
+        log = {"Curriculum/terrain_level": level.mean()}
+        for index, kind in enumerate(self.levels.kinds):
+            log[f"Curriculum/level_{kind}"] = level[self.terrain_kind == index].mean()
+        return log
+
+    def state(self) -> dict[str, Tensor]:
+        """Per-env tensors to keep when the core is pickled."""
+        return {"terrain_level": self.terrain_level, "draws": self.draws}
+
+    def checkpoint(self) -> dict[str, Tensor]:
+        """What a checkpoint keeps of the curriculum: the levels (empty without a map)."""
+        if self.terrain_map is None:
+            return {}
+        return {"terrain_level": self.terrain_level.clone()}
+
+    def load_checkpoint(self, state: dict[str, Tensor]) -> str | None:
+        """Go on from a checkpoint's ``checkpoint()``: each env's next start is on its
+        saved level. Returns why the state was not used (another number of envs), else
+        None.
+
+        Raises:
+            ValueError: naming the field, if the levels are not integers.
+        """
+        saved = state.get("terrain_level")
+        if self.terrain_map is None or saved is None:
+            return None
+        if not isinstance(saved, Tensor) or saved.dtype not in (torch.int32, torch.int64):
+            raise ValueError(
+                f"terrain_level must be an integer tensor, got {type(saved).__name__} "
+                f"{getattr(saved, 'dtype', '')}".rstrip()
+            )
+        if saved.shape != self.terrain_level.shape:
+            return (
+                f"terrain levels of {saved.numel()} envs, this run has "
+                f"{self.terrain_level.numel()}: the curriculum starts again at the start level"
+            )
+        self.terrain_level.copy_(saved.clamp(0, self.levels.levels - 1))
+        return None

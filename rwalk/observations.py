@@ -1,0 +1,306 @@
+"""Observation pieces: named blocks of values the views assemble, each with its noise.
+
+A piece is declared once as an ``ObsPiece``: its width, the function that reads
+it from the core's parts (``Sources``), what it holds, and the half-width of the
+uniform noise a policy sees on it when the config has ``observation_noise``
+(a number, or a function of the ``ObservationNoise`` config; None: exact).
+Every task offers ``COMMON_PIECES`` plus its own (``Task.pieces``); the TorchRL
+keys, the rsl-rl groups, the export's input layout and the noise all come from
+these declarations.
+
+Two pieces are built from the task's own list of pieces (``Task.observation``):
+``observation``, the task's spec observation, and ``observation_from_start``,
+the same with the torso's x and y taken from the episode's start, so that a
+policy cannot read where on a map it is.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, fields
+from typing import Any, NamedTuple
+
+import torch
+from torch import Tensor
+
+from rwalk import rng
+from rwalk.constants import (
+    OBS_ANGVEL,
+    OBS_DIM,
+    OBS_FOOT_POS,
+    OBS_FOOT_VEL,
+    OBS_JOINT_POS,
+    OBS_JOINT_VEL,
+    OBS_LINVEL,
+    OBS_POS,
+    OBS_QUAT,
+)
+from rwalk.randomization import PHYSICS_PARAMS
+from rwalk.terrain import Terrain
+
+#: Random stream of the observation noise (see ``rwalk.rng``).
+NOISE_STREAM = "obs_noise"
+#: The task's spec observation, and the same with x, y from the episode's start.
+COMPOSITE = ("observation", "observation_from_start")
+
+
+@dataclass(frozen=True)
+class ObservationNoise:
+    """Half-widths of uniform noise added to the policy's observation, per block.
+
+    The sensor blocks are the ``sensors`` piece's noise (and so the spec observation's,
+    wherever its 65 values appear); the others that of the pieces they name.
+    Contacts stay exact. Pieces declared with a fixed noise (``ObsPiece.noise``) get
+    it whenever a config has an ``ObservationNoise``.
+    """
+
+    torso_pos: float = 0.005
+    """m."""
+    torso_quat: float = 0.01
+    torso_linvel: float = 0.015
+    """m/s (about 10% of the walking speed, like legged_gym's 0.1 m/s at ~1 m/s)."""
+    torso_angvel: float = 0.1
+    """rad/s."""
+    joint_pos: float = 0.01
+    """rad."""
+    joint_vel: float = 0.3
+    """rad/s."""
+    foot_pos: float = 0.002
+    """m."""
+    foot_vel: float = 0.03
+    """m/s."""
+    lateral_offset: float = 0.005
+    """m."""
+    gait: float = 0.0
+    """The adaptive task's gait parameters (normalised)."""
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not (
+                isinstance(value, (int, float))
+                and not isinstance(value, bool)
+                and math.isfinite(value)
+                and value >= 0
+            ):
+                raise ValueError(f"ObservationNoise.{f.name} must be a scale >= 0, got {value!r}")
+
+    def sensor_scales(self) -> Tensor:
+        """Scale of each of the 65 sensor values. Shape: (65,) float64."""
+        scales = torch.zeros(OBS_DIM, dtype=torch.float64)
+        blocks = (
+            (OBS_POS, self.torso_pos), (OBS_QUAT, self.torso_quat),
+            (OBS_LINVEL, self.torso_linvel), (OBS_ANGVEL, self.torso_angvel),
+            (OBS_JOINT_POS, self.joint_pos), (OBS_JOINT_VEL, self.joint_vel),
+            (OBS_FOOT_POS, self.foot_pos), (OBS_FOOT_VEL, self.foot_vel),
+        )  # fmt: skip
+        for block, scale in blocks:
+            scales[block] = scale
+        return scales
+
+
+class Sources(NamedTuple):
+    """What pieces read: the core's parts (live objects, updated in place)."""
+
+    sensors: Tensor
+    """The spec's 65 sensor values of each env (contacts as 0/1). Shape: (N, 65)."""
+    episodes: Any
+    """``rwalk.episodes.Episodes``: x0, y0 of each episode."""
+    physics: Any
+    """``rwalk.randomization.PhysicsDraws``: each env's drawn physics."""
+    terrain: Terrain
+    """Ground heights."""
+    task: Any
+    """The ``rwalk.tasks.Task``: gait phase, targets, its own state."""
+    sim: Any
+    """The ``rwalk.sim.BatchedSim``: every simulation's arrays (qvel, actuator_force, ...)."""
+
+
+Noise = float | Callable[[ObservationNoise], "Tensor | float"] | None
+
+
+class ObsPiece(NamedTuple):
+    """A named block of observation values."""
+
+    size: int
+    read: Callable[[Sources], Tensor]
+    """The block for every env, float64. Shape: (N, size)."""
+    doc: str
+    noise: Noise = None
+    """Half-width of the uniform noise on each value when the config has observation
+    noise: a number, a function of the ``ObservationNoise`` config giving a number or
+    one per value (Shape: (size,)), or None (never noisy)."""
+
+
+#: Ground samples around each foot for the privileged pieces, in world axes: under the
+#: foot, and 3 cm ahead, behind, left and right of it. Metres.
+HEIGHT_OFFSETS = ((0.0, 0.0), (0.03, 0.0), (-0.03, 0.0), (0.0, 0.03), (0.0, -0.03))
+#: Pieces a critic (or a teacher) may add to the policy's: the world the actor cannot see.
+PRIVILEGED_PIECES = ("physics", "heights")
+
+
+def foot_clearances(sensors: Tensor, terrain: Terrain) -> Tensor:
+    """Height of each foot above the ground at HEIGHT_OFFSETS around it, foot-major.
+
+    The feet's world positions come from the torso's position and orientation and the
+    feet's positions in the torso frame (the observation's sensors), with elementwise
+    products and sums only. Shape: (N, 65) -> (N, 4 * len(HEIGHT_OFFSETS)) float64. Metres.
+    """
+    n = sensors.shape[0]
+    w, x, y, z = sensors[:, OBS_QUAT].unbind(-1)
+    rotation = (
+        (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)),
+        (2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)),
+        (2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)),
+    )
+    local = sensors[:, OBS_FOOT_POS].view(n, 4, 3)
+    world = [
+        sensors[:, OBS_POS.start + i, None]
+        + row[0][:, None] * local[..., 0]
+        + row[1][:, None] * local[..., 1]
+        + row[2][:, None] * local[..., 2]
+        for i, row in enumerate(rotation)
+    ]  # each (N, 4)
+    offsets = torch.tensor(HEIGHT_OFFSETS, dtype=torch.float64)
+    ground = terrain.heights_at(
+        world[0][..., None] + offsets[:, 0], world[1][..., None] + offsets[:, 1]
+    )
+    return (world[2][..., None] - ground).reshape(n, -1)
+
+
+def _lateral_offset(s: Sources) -> Tensor:
+    return (s.sensors[:, OBS_POS.start + 1] - s.episodes.y0).unsqueeze(-1)
+
+
+#: Pieces every task has. ``sensors`` is the spec's 65-D observation.
+COMMON_PIECES: dict[str, ObsPiece] = {
+    "sensors": ObsPiece(OBS_DIM, lambda s: s.sensors,
+                        "the spec's 65 values: torso, joints, feet, contacts",
+                        noise=ObservationNoise.sensor_scales),
+    "phase": ObsPiece(2, lambda s: s.task.phase_features(), "sin, cos of 2π x the gait phase"),
+    "lateral_offset": ObsPiece(1, _lateral_offset,
+                               "torso y - y0, the drift the lateral term sees (m)",
+                               noise=lambda cfg: cfg.lateral_offset),
+    "command": ObsPiece(1, lambda s: s.task.target.unsqueeze(-1),
+                        "the episode's target velocity (m/s; config.command_range)"),
+    "physics": ObsPiece(len(PHYSICS_PARAMS), lambda s: s.physics.normalised_params(),
+                        "privileged: the env's randomised physics, centred and scaled "
+                        "(rwalk.randomization)"),
+    "heights": ObsPiece(4 * len(HEIGHT_OFFSETS),
+                        lambda s: foot_clearances(s.sensors, s.terrain),
+                        "privileged: each foot's height above the ground under it and 3 cm "
+                        "around it (m)"),
+}  # fmt: skip
+
+
+class Observations:
+    """Reads a task's pieces, and the noisy ones a policy sees.
+
+    Args:
+        pieces: every piece of the task (``Task.pieces()``).
+        observation: the pieces of the task's spec observation, in order.
+        sources: what the pieces read.
+        noise: the config's observation noise; None: every piece exact.
+    """
+
+    def __init__(
+        self,
+        pieces: Mapping[str, ObsPiece],
+        observation: Sequence[str],
+        sources: Sources,
+        noise: ObservationNoise | None,
+    ) -> None:
+        self.pieces = dict(pieces)
+        self.observation = tuple(observation)
+        self.sources = sources
+        self.noise = noise
+        self._generator = torch.Generator()
+        self._noise_cache: dict[str, Tensor] = {}
+        self._scale_cache: dict[str, Tensor | None] = {}  # per piece: fixed by the config
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Every piece a view may ask for."""
+        return (*COMPOSITE, *self.pieces)
+
+    def size(self, name: str) -> int:
+        """Width of the piece ``name``.
+
+        Raises:
+            ValueError: naming the piece and listing the task's pieces.
+        """
+        if name in COMPOSITE:
+            return sum(self.pieces[part].size for part in self.observation)
+        return self._piece(name).size
+
+    def read(self, name: str) -> Tensor:
+        """The piece ``name`` of every env, exact. Shape: (N, size) float64.
+
+        Raises:
+            ValueError: naming the piece and listing the task's pieces.
+        """
+        if name == "observation":
+            if self.observation == ("sensors",):
+                return self.sources.sensors
+            return torch.cat([self.read(part) for part in self.observation], dim=-1)
+        if name == "observation_from_start":
+            obs = self.read("observation").clone()
+            obs[:, OBS_POS.start] -= self.sources.episodes.x0
+            obs[:, OBS_POS.start + 1] -= self.sources.episodes.y0
+            return obs
+        return self._piece(name).read(self.sources)
+
+    def _piece(self, name: str) -> ObsPiece:
+        if name not in self.pieces:
+            raise ValueError(f"no observation piece {name!r}; choose from {self.names}")
+        return self.pieces[name]
+
+    # ------------------------------------------------------------ noise
+    def seed(self, seed: int) -> None:
+        """Restart the noise (the core was reseeded)."""
+        key = int(rng.keys(seed, NOISE_STREAM, 0))
+        self._generator.manual_seed(key & (2**63 - 1))
+        self._noise_cache.clear()
+
+    def new_step(self) -> None:
+        """A step begins: the next reads draw new noise."""
+        self._noise_cache.clear()
+
+    def noisy(self, name: str, value: Tensor | None = None) -> Tensor:
+        """The piece ``name`` (``value``: already read) plus this step's noise (the same
+        noise for every read within one step). Shape: (N, size)."""
+        value = self.read(name) if value is None else value
+        if self.noise is None:
+            return value
+        if name not in self._scale_cache:
+            self._scale_cache[name] = self.scales(name)
+        scales = self._scale_cache[name]
+        if scales is None:
+            return value
+        noise = self._noise_cache.get(name)
+        if noise is None:
+            u = torch.rand(value.shape, dtype=torch.float64, generator=self._generator)
+            noise = (2.0 * u - 1.0) * scales
+            self._noise_cache[name] = noise
+        return value + noise
+
+    def scales(self, name: str) -> Tensor | None:
+        """Noise half-width of each value of the piece ``name`` under the config's
+        observation noise; None for an exact piece. Shape: (size,) float64."""
+        if self.noise is None:
+            return None
+        if name in COMPOSITE:
+            parts = [self.scales(part) for part in self.observation]
+            zeros = [torch.zeros(self.pieces[part].size, dtype=torch.float64)
+                     for part in self.observation]  # fmt: skip
+            scales = torch.cat([z if p is None else p for p, z in zip(parts, zeros, strict=True)])
+            return scales if bool(scales.any()) else None
+        piece = self._piece(name)
+        if piece.noise is None:
+            return None
+        scale = piece.noise(self.noise) if callable(piece.noise) else piece.noise
+        if isinstance(scale, Tensor):
+            return scale
+        scale = float(scale)
+        return torch.full((piece.size,), scale, dtype=torch.float64) if scale > 0 else None
