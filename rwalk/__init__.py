@@ -8,9 +8,9 @@ from rwalk.envs import AdaptiveGaitEnv, ResidualWalkEnv
 from rwalk.gait import BezierGaitController, GaitParameters
 from rwalk.kinematics import LegGeometry, leg_fk, leg_ik
 from rwalk.levels import TerrainLevels
-from rwalk.physics import Physics
 from rwalk.observations import ObservationNoise
 from rwalk.perturbations import Pushes
+from rwalk.physics import Physics
 from rwalk.randomization import Randomization
 from rwalk.rewards import RewardWeights
 from rwalk.sim import BatchedSim

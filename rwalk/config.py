@@ -7,9 +7,9 @@ from dataclasses import dataclass, field, fields
 
 from rwalk.gait import GaitParameters
 from rwalk.levels import TerrainLevels
-from rwalk.physics import Physics
 from rwalk.observations import ObservationNoise
 from rwalk.perturbations import Pushes
+from rwalk.physics import Physics
 from rwalk.randomization import Randomization
 from rwalk.rewards import RewardWeights
 

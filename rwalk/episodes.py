@@ -130,9 +130,7 @@ class Episodes:
         length = self.walked_steps[env_ids].to(torch.float64)
         log = {f"sum/{name}": total[env_ids] for name, total in self.sums.items()}
         log["length"] = length
-        log["forward_velocity"] = self.distance[env_ids] / (
-            length.clamp(min=1.0) * self.control_dt
-        )
+        log["forward_velocity"] = self.distance[env_ids] / (length.clamp(min=1.0) * self.control_dt)
         log["target_velocity"] = (
             target[env_ids] if isinstance(target, Tensor) else torch.full_like(length, target)
         )

@@ -1,45 +1,31 @@
-"""Evaluate a trained policy, or the base gait, over fixed-seed episodes; optionally film one.
+"""Evaluation: trained policies and the base gait over fixed-seed, paired episodes.
 
-    rwalk-play --base-gait
-    rwalk-play --checkpoint logs/rwalk/model_149.pt --video docs/policy.mp4
-    rwalk-play --checkpoint logs/rwalk/model_149.pt --base-gait   # both, paired
-    rwalk-play --checkpoint logs/adaptive/model_299.pt --command 0.2   # ask for 0.2 m/s
-
-(``python -m rwalk.runners.play`` in a checkout.) Checkpoints are rsl-rl's, from
-rwalk-train (model_<it>.pt, with the config.json it writes beside them); the
-checkpoint's task (config.json) sets the task, --task the base gait's without one.
---command V makes V m/s every episode's target velocity: the reward and the
-velocity error track it, and a policy trained with commands (--command-range)
-reads it (default for such a policy: the gait's step_length / cycle_time).
-
-Every run uses the same starts (seed --seed: episode i starts like a single env
-seeded --seed + i), so the base gait and a policy meet exactly the same episodes. Episodes are the
-spec's (settle 500 steps, up to 1000 steps) on world_train at full roughness,
-with starts spread over the terrain. Only --video needs OpenGL: with MUJOCO_GL
-unset and no display it takes EGL or OSMesa, whichever loads
-(apt-get install libosmesa6), and without one it evaluates without a video.
+``evaluate(name, env, seed, policy)`` runs one episode in every env of a batch
+(env i starts like a single env seeded seed + i, whatever ran before) and sums
+it up as an ``Evaluation``, through the one episode path
+(``rwalk.episodes.step``) that training logs with. ``load_policy(checkpoint,
+env)`` rebuilds a checkpoint's deterministic policy from the configs its run
+stored in config.json (``rwalk.rl.config``), with the observation groups of the
+one rule. ``rwalk-play``, ``rwalk-robustness`` and the reports stand on these.
 """
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import json
 import math
-import sys
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from rwalk import EnvConfig, ResidualWalkVecEnv, episodes, presets
-from rwalk.progress import Progress
-from rwalk.runners.cli import NATURAL_INT, POSITIVE_FLOAT, POSITIVE_INT, UNIT_FLOAT
-from rwalk.tasks.base import PRIVILEGED_PIECES
-from rwalk.wrappers import RslRlVecEnv
+from rwalk import episodes
+from rwalk.envs.torchrl_env import BatchedEnv
+from rwalk.rl.checkpoints import load_checkpoint
+from rwalk.rl.config import TrainArgs, observation_groups
+from rwalk.rl.rsl_rl_env import RslRlVecEnv
 
 #: Which command wrote a checkpoint, by its "trainer" key (or its layout, in older files).
 TRAINERS = {"rsl_rl": "rwalk-train", "torchrl": "rwalk-train-torchrl"}
@@ -64,16 +50,14 @@ class Evaluation:
     mean_length: float
 
 
-def eval_config(
-    terrain_scale: float = 1.0, max_steps: int = 1000, settle_steps: int = 500
-) -> EnvConfig:
-    """The spec's episodes on the rough world, starts spread over the terrain."""
-    return presets.evaluation_config("residual_walk", terrain_scale, max_steps, settle_steps)
-
-
 def saved_args(checkpoint: Path) -> dict:
     """The training flags of ``checkpoint``'s run (its config.json)."""
     return json.loads((checkpoint.parent / "config.json").read_text())["args"]
+
+
+def saved_run(checkpoint: Path):
+    """The configs of ``checkpoint``'s run (``TrainArgs``: ``.env``, ``.train``, ``.run``)."""
+    return TrainArgs.from_saved(saved_args(checkpoint))
 
 
 def checkpoint_trainer(saved: dict) -> str:
@@ -89,14 +73,12 @@ def checkpoint_trainer(saved: dict) -> str:
 
 
 def check_checkpoint(checkpoint: Path) -> None:
-    """Fail before any work, naming the file, if play cannot evaluate ``checkpoint``.
+    """Fail before any work, naming the file, if ``checkpoint`` cannot be evaluated.
 
     Raises:
         FileNotFoundError: the checkpoint, or the config.json beside it, is missing.
         ValueError: the file is not a readable checkpoint, or another trainer wrote it.
     """
-    from rwalk.runners.checkpoints import load_checkpoint
-
     trainer = checkpoint_trainer(load_checkpoint(checkpoint))
     if trainer != "rsl_rl":
         writer = TRAINERS.get(trainer, f"an unknown trainer ({trainer!r})")
@@ -112,25 +94,24 @@ def check_checkpoint(checkpoint: Path) -> None:
         )
 
 
-def load_policy(checkpoint: Path, env: ResidualWalkVecEnv):
-    """The checkpoint's deterministic policy and the observation groups it reads."""
-    from rwalk.runners.checkpoints import SafeRunner
-    from rwalk.runners.train import Args, policy_pieces, rsl_rl_config
+def load_policy(checkpoint: Path, env: BatchedEnv) -> Callable[[], torch.Tensor]:
+    """The checkpoint's deterministic policy on ``env``: a callable returning the actions
+    of the current state. Shape: () -> (N, action_dim)."""
+    from rwalk.rl.runner import SafeRunner
 
     check_checkpoint(checkpoint)
-    saved = saved_args(checkpoint)
-    args = Args.from_saved(saved)
+    args = saved_run(checkpoint)
     if args.task != env.core.task.name:
         raise ValueError(
             f"checkpoint {str(checkpoint)!r} is a {args.task!r} policy; the env runs "
             f"{env.core.task.name!r}"
         )
-    pieces = policy_pieces(args, env.core.task)
-    # A robust run's critic also read the privileged pieces (the policy never does).
-    critic = (*pieces, *PRIVILEGED_PIECES) if args.robust else pieces
-    adapter = RslRlVecEnv(env, policy_obs=pieces, critic_obs=critic, reward_scale=args.reward_scale)
+    groups = observation_groups(env.core.task, args.env, args.policy_obs)
+    adapter = RslRlVecEnv(env, policy_obs=groups["policy"], critic_obs=groups["critic"],
+                          reward_scale=args.reward_scale)  # fmt: skip
     with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the whole architecture
-        runner = SafeRunner(adapter, rsl_rl_config(args), log_dir=None, device="cpu")
+        runner = SafeRunner(adapter, args.train.to_rsl_rl(args.save_interval), log_dir=None,
+                            device="cpu")  # fmt: skip
     runner.load(str(checkpoint))
     policy = runner.get_inference_policy()
 
@@ -143,10 +124,10 @@ def load_policy(checkpoint: Path, env: ResidualWalkVecEnv):
 
 def evaluate(
     name: str,
-    env: ResidualWalkVecEnv,
+    env: BatchedEnv,
     seed: int,
-    policy=None,
-    record=None,
+    policy: Callable[[], torch.Tensor] | None = None,
+    record: Callable[[int], None] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> Evaluation:
     """Run one episode in every env of ``env`` (reset first) and summarise.
@@ -200,6 +181,7 @@ def evaluate(
 
 
 def table(rows: list[Evaluation]) -> str:
+    """The evaluations as a Markdown table."""
     lines = [
         "| run | episodes | mean return | fall rate | forward velocity (m/s) "
         "| velocity-tracking error (m/s) | contact-pattern score | mean length |",
@@ -212,196 +194,3 @@ def table(rows: list[Evaluation]) -> str:
             f"{r.mean_length:.0f} |"
         )
     return "\n".join(lines)
-
-
-class VideoRecorder:
-    """Frames of env 0 for the first ``seconds`` of an evaluation, written as MP4 or GIF."""
-
-    def __init__(self, env: ResidualWalkVecEnv, path: Path, seconds: float) -> None:
-        from rwalk.render import FrameRenderer
-
-        self.path, self.env = path, env
-        self.renderer = FrameRenderer(env.core.model)
-        self.frames: list[np.ndarray] = []
-        self.limit = round(seconds / env.core.control_dt)
-
-    def __call__(self, step: int) -> None:
-        if step < self.limit:
-            self.frames.append(self.renderer.frame(self.env.core.sim, 0))
-
-    def save(self) -> None:
-        import imageio.v3 as iio
-
-        fps = round(1.0 / self.env.core.control_dt)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        if self.path.suffix == ".gif":
-            iio.imwrite(self.path, self.frames[::2], duration=2000 // fps, loop=0)
-        else:
-            iio.imwrite(self.path, self.frames, fps=fps, codec="libx264")
-        self.renderer.close()
-        print(f"wrote {self.path} ({len(self.frames)} frames)")
-
-
-def command_name(module: str = "rwalk.runners.play") -> str:
-    """How the user ran this runner, for the usage line: the console script's name
-    (``rwalk-play``), else ``python -m <module>``."""
-    script = Path(sys.argv[0]).name if sys.argv and sys.argv[0] else ""
-    if script.startswith("rwalk-"):
-        return script
-    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
-    if spec is not None and spec.name.rsplit(".", 1)[-1] == module.rsplit(".", 1)[-1]:
-        return f"python -m {spec.name}"  # the checkout shim: python -m runners.play
-    return f"python -m {module}"
-
-
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog=command_name(),
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    add = parser.add_argument
-    add(
-        "--checkpoint",
-        metavar="PATH",
-        type=Path,
-        help="rsl-rl checkpoint model_<it>.pt (default: none)",
-    )
-    add("--base-gait", action="store_true", help="evaluate zero actions (default: off)")
-    add(
-        "--task",
-        default="residual_walk",
-        help="task of a --base-gait run without --checkpoint (default: %(default)s)",
-    )
-    add(
-        "--command",
-        metavar="M/S",
-        type=POSITIVE_FLOAT,
-        help="every episode's target velocity, which the reward and the velocity error "
-        "track (default: the gait's step_length / cycle_time)",
-    )
-    add(
-        "--episodes",
-        metavar="N",
-        type=POSITIVE_INT,
-        default=100,
-        help="episodes, one per env (default: %(default)s)",
-    )
-    add(
-        "--seed",
-        metavar="SEED",
-        type=NATURAL_INT,
-        default=1000,
-        help="episode i starts like a single env seeded seed + i (default: %(default)s)",
-    )
-    add(
-        "--terrain-scale",
-        metavar="SCALE",
-        type=UNIT_FLOAT,
-        default=1.0,
-        help="terrain roughness, 0 flat .. 1 full (default: %(default)s)",
-    )
-    add(
-        "--max-steps",
-        metavar="STEPS",
-        type=POSITIVE_INT,
-        default=1000,
-        help="episode length in env steps (default: %(default)s)",
-    )
-    add(
-        "--settle-steps",
-        metavar="STEPS",
-        type=NATURAL_INT,
-        default=500,
-        help="settling at each start (default: %(default)s)",
-    )
-    add(
-        "--video",
-        metavar="PATH",
-        type=Path,
-        help="MP4 or GIF of episode 0, needs OpenGL (default: none)",
-    )
-    add(
-        "--video-seconds",
-        metavar="SECONDS",
-        type=POSITIVE_FLOAT,
-        default=10.0,
-        help="length of the video (default: %(default)s)",
-    )
-    add("--json", metavar="PATH", type=Path, help="save the table's figures here (default: none)")
-    add(
-        "--progress",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="progress lines on stderr (default: only when stderr is a terminal)",
-    )
-    args = parser.parse_args(argv)
-    if not args.checkpoint and not args.base_gait:
-        parser.error("give --checkpoint PATH, --base-gait, or both")
-    if args.checkpoint:
-        try:
-            check_checkpoint(args.checkpoint)
-        except (FileNotFoundError, ValueError) as error:
-            parser.error(f"--checkpoint: {error}")
-        args.task = saved_args(args.checkpoint).get("task", "residual_walk")
-    try:
-        presets.get_task(args.task)
-    except ValueError as error:
-        parser.error(f"--task: {error}")
-    return args
-
-
-def commanded(args: argparse.Namespace) -> tuple[float, float] | None:
-    """The eval env's command range: --command, or the gait's speed for a policy
-    trained with commands (it reads one)."""
-    trained = args.checkpoint and saved_args(args.checkpoint).get("command_range")
-    if args.command is None and not trained:
-        return None
-    speed = args.command if args.command is not None else EnvConfig().expected_velocity
-    return (speed, speed)
-
-
-def play(argv: list[str] | None = None) -> list[Evaluation]:
-    """Run the command line ``argv``; returns its table's rows."""
-    args = parse_args(argv)
-    config = presets.evaluation_config(
-        args.task, args.terrain_scale, args.max_steps, args.settle_steps, commanded(args)
-    )
-    env = ResidualWalkVecEnv(args.episodes, config, seed=args.seed, task=args.task)
-    env.core.settle_progress = Progress("settling starts", "physics steps", enabled=args.progress)
-    recorder = None
-    if args.video:
-        from rwalk.render import gl_available
-
-        ok, why = gl_available()
-        if ok:
-            recorder = VideoRecorder(env, args.video, args.video_seconds)
-        else:
-            print(f"no video: {why}", file=sys.stderr)
-    rows = []
-
-    def run(name: str, policy=None, record=None) -> None:
-        progress = Progress(f"evaluating {name}", enabled=args.progress)
-        rows.append(evaluate(name, env, args.seed, policy, record, progress))
-
-    if args.base_gait:
-        run("base gait", record=recorder if not args.checkpoint else None)
-    if args.checkpoint:
-        run(f"policy {args.checkpoint.name}", load_policy(args.checkpoint, env), recorder)
-    print(table(rows))
-    if recorder is not None:
-        recorder.save()
-    if args.json:
-        from rwalk.runners.checkpoints import atomic_write_text
-
-        atomic_write_text(args.json, json.dumps([asdict(r) for r in rows], indent=2))
-    return rows
-
-
-def main(argv: list[str] | None = None) -> None:
-    """Console script ``rwalk-play`` (returns None: its exit status is 0)."""
-    play(argv)
-
-
-if __name__ == "__main__":
-    main()

@@ -195,7 +195,7 @@ def export_policy(
     Returns:
         (TorchScript path, ONNX path).
     """
-    from rwalk.runners.checkpoints import atomic_write, atomic_write_text
+    from rwalk.rl.checkpoints import atomic_write, atomic_write_text
 
     policy, layout = _policy_and_pieces(runner_or_policy, pieces)
     folder = Path(folder)

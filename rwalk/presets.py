@@ -1,13 +1,17 @@
 """The configurations runners share: training and evaluation episodes of each task.
 
-One place for the start spread, pooled settling and world, so that the trainer,
-the evaluator, the benchmark and the TorchRL trainer run the same episodes.
+One place for the start spread, pooled settling and world, so that both trainers,
+the evaluator and the benchmark run the same episodes. ``TrainingEnv`` is the
+training's envs as a config (the trainers' env flags map one to one onto it);
+``robust_world`` is the robust training's world.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 
+from rwalk.cli import require_at_least, require_in
 from rwalk.config import EnvConfig
 from rwalk.levels import TerrainLevels
 from rwalk.observations import ObservationNoise
@@ -16,8 +20,8 @@ from rwalk.randomization import Randomization
 from rwalk.tasks import get_task
 
 __all__ = [
-    "BASE_GAIT_SPREAD", "PAD_SPREAD", "START_SPREAD", "base_gait_config",
-    "evaluation_config", "get_task", "robust_parts", "training_config",
+    "BASE_GAIT_SPREAD", "PAD_SPREAD", "START_SPREAD", "TrainingEnv", "base_gait_config",
+    "evaluation_config", "get_task", "robust_parts", "robust_world", "training_config",
 ]  # fmt: skip
 
 #: Half-widths (x, y) of the start spread over the training terrain. Metres.
@@ -46,14 +50,15 @@ def training_config(
     """The training env: pooled settling and starts spread; for adaptive_gait,
     starting parameters spread by ``start_spread`` (see ``AdaptiveGaitConfig.start_spread``).
 
-    ``robust``: on a terrain-levels map with its curriculum, randomised physics,
-    pushes and observation noise (``robust_parts``; ``terrain_scale`` is ignored).
+    ``robust``: in the robust world (``robust_world``: a terrain-levels map with its
+    curriculum, physics randomisation, pushes and observation noise; ``terrain_scale``
+    is ignored).
     Otherwise one rough world at ``terrain_scale``, starts spread over it.
     """
     kind = get_task(task).config_type
     extra = {"start_spread": start_spread} if "start_spread" in kind.__dataclass_fields__ else {}
     if robust:
-        extra |= robust_parts() | {"position_noise": PAD_SPREAD}
+        extra |= robust_world() | {"position_noise": PAD_SPREAD}
     else:
         extra |= {"terrain_scale": terrain_scale, "position_noise": START_SPREAD}
     return kind(
@@ -69,9 +74,9 @@ def training_config(
     )
 
 
-def robust_parts() -> dict:
-    """The robust training's world: a terrain-levels map with its curriculum, randomised
-    physics, pushes and observation noise, each at its defaults (``EnvConfig`` fields)."""
+def robust_world() -> dict:
+    """The robust world: a terrain-levels map with its curriculum, physics randomisation,
+    pushes and observation noise, each at its defaults (``EnvConfig`` fields)."""
     return {
         "terrain_levels": TerrainLevels(),
         "randomization": Randomization(),
@@ -112,3 +117,70 @@ def base_gait_config(world: str, **overrides) -> EnvConfig:
         tilt_noise=0.0,
     )
     return dataclasses.replace(config, **overrides)
+
+
+#: The robust world's parts by their old name.
+robust_parts = robust_world
+
+
+@dataclass(frozen=True)
+class TrainingEnv:
+    """The envs a training steps: task, count and world (the env flags of both trainers)."""
+
+    task: str = "residual_walk"
+    """task: residual_walk or adaptive_gait"""
+    num_envs: int = 1024
+    """parallel envs (under torchrun: per rank; with collectors: per worker)"""
+    robust: bool = True
+    """train for worlds never seen: per-env terrain levels with their curriculum, physics
+    randomisation, pushes, observation noise and a privileged critic (--no-robust: one rough
+    world at --terrain-scale)"""
+    terrain_scale: float = 1.0
+    """--no-robust: roughness of the one rough world, 0..1"""
+    settle_steps: int = 100
+    """zero-residual steps at each start"""
+    settle_pool_fraction: float = 0.25
+    """settled starts kept ready, as a fraction of num_envs"""
+    settle_reuse: int = 4
+    """resets served by each pooled start"""
+    max_episode_steps: int = 1000
+    """episode length (50 Hz)"""
+    command_range: tuple[float, ...] = dataclasses.field(default=(), metadata={"item": float})
+    """draw each episode's target velocity from LOW HIGH m/s, shown to the policy as the
+    piece command (none: the gait's step_length / cycle_time)"""
+    start_spread: float = 0.5
+    """adaptive_gait: episodes start from gait parameters spread by this fraction of each
+    range (0: the starting gait; residual_walk ignores it)"""
+
+    def __post_init__(self) -> None:
+        require_at_least(self, 1, "num_envs", "settle_reuse", "max_episode_steps")
+        require_at_least(self, 0, "settle_steps")
+        require_in(self, "start_spread", 0.0, 1.0)
+        require_in(self, "terrain_scale", 0.0, 1.0)
+        require_in(self, "settle_pool_fraction", 0.0, 1.0, low_open=True)
+        get_task(self.task)  # ValueError listing the known tasks
+        if self.command_range and (
+            len(self.command_range) != 2 or self.command_range[0] > self.command_range[1]
+        ):
+            raise ValueError(f"--command-range must be LOW HIGH, got {self.command_range}")
+
+    @property
+    def commands(self) -> tuple[float, float] | None:
+        """The command range as the env config takes it (None: no commands)."""
+        return tuple(float(v) for v in self.command_range) or None  # type: ignore[return-value]
+
+    def config(self, threads: int = 0) -> EnvConfig:
+        """The env config of these envs, its physics on ``threads`` threads (0: all cores)."""
+        return training_config(
+            self.task,
+            num_envs=self.num_envs,
+            robust=self.robust,
+            terrain_scale=self.terrain_scale,
+            settle_steps=self.settle_steps,
+            settle_pool_fraction=self.settle_pool_fraction,
+            settle_reuse=self.settle_reuse,
+            max_episode_steps=self.max_episode_steps,
+            threads=threads,
+            command_range=self.commands,
+            start_spread=self.start_spread,
+        )

@@ -13,6 +13,7 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import os
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -135,3 +136,32 @@ def gl_available() -> tuple[bool, str]:
     except RuntimeError as error:
         return False, str(error)
     return True, ""
+
+
+class VideoRecorder:
+    """Frames of env 0 of a batched env for its first ``seconds``, written as MP4 or GIF.
+
+    Call it after each step (``rwalk.evaluation.evaluate``'s ``record``), then ``save``.
+    """
+
+    def __init__(self, env, path, seconds: float) -> None:
+        self.path, self.env = Path(path), env
+        self.renderer = FrameRenderer(env.core.model)
+        self.frames: list[np.ndarray] = []
+        self.limit = round(seconds / env.core.control_dt)
+
+    def __call__(self, step: int) -> None:
+        if step < self.limit:
+            self.frames.append(self.renderer.frame(self.env.core.sim, 0))
+
+    def save(self) -> None:
+        import imageio.v3 as iio
+
+        fps = round(1.0 / self.env.core.control_dt)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if self.path.suffix == ".gif":
+            iio.imwrite(self.path, self.frames[::2], duration=2000 // fps, loop=0)
+        else:
+            iio.imwrite(self.path, self.frames, fps=fps, codec="libx264")
+        self.renderer.close()
+        print(f"wrote {self.path} ({len(self.frames)} frames)")

@@ -14,9 +14,9 @@ import torch
 from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.collectors.distributed import DistributedCollector
 
+from rwalk.cli import parse_dataclass
+from rwalk.rl.checkpoints import load_checkpoint
 from rwalk.runners import train_torchrl
-from rwalk.runners.checkpoints import load_checkpoint
-from rwalk.runners.cli import parse_dataclass
 from rwalk.runners.torchrl_collect import (
     WorkerDied,
     WorkerEnv,

@@ -47,7 +47,7 @@ def test_pooled_resets_return_settled_starts_and_refill_in_one_batch():
     core.reset(np.array([0, 2]))
     # The empty pool was filled once: 4 starts x 10 env steps x 5 substeps.
     assert core.physics_steps["settle"] - settled_before == 4 * 10 * core.decimation
-    pool = core._pool
+    pool = core.starts.pool
     assert pool.uses_left.tolist() == [1, 1, 2, 2]
     np.testing.assert_array_equal(core.sim.state[[0, 2]], pool.sim.state[[0, 1]])
     assert core.episode_step[[0, 2]].tolist() == [0, 0]
@@ -84,9 +84,9 @@ def test_terrain_change_drops_pooled_starts():
     core = ResidualWalkCore(dataclasses.replace(QUICK, settle_pool=2), 2, seed=0)
     core.reset()
     core.reset(np.array([0]))
-    assert core._pool.uses_left.sum() == 1
+    assert core.starts.pool.uses_left.sum() == 1
     core.set_terrain_scale(0.5)
-    assert core._pool.uses_left.sum() == 0
+    assert core.starts.pool.uses_left.sum() == 0
 
 
 @pytest.mark.parametrize(

@@ -20,8 +20,9 @@ from pathlib import Path
 import pytest
 from test_runners import ROOT, TINY_TRAIN
 
-from rwalk.runners import distributed, train
-from rwalk.runners.checkpoints import LOCK_NAME, checkpoint_files, load_checkpoint
+from rwalk.rl import distributed
+from rwalk.rl.checkpoints import LOCK_NAME, checkpoint_files, load_checkpoint
+from rwalk.runners import train
 
 TINY = [*TINY_TRAIN, "--num-envs", "8", "--no-export"]
 """2 ranks x 8 envs, 4 steps per iteration, 2 settle steps, 30-step episodes."""

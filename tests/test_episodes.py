@@ -68,7 +68,7 @@ def test_any_task_can_be_asked_for_a_speed():
         config=config, seed=0
     )  # the batched pipeline: the float one has no command
     _, info = env.reset()
-    assert not env.core.has_single_step and info["target_velocity"] == 0.2
+    assert env.single_step is None and info["target_velocity"] == 0.2
     _, _, _, _, info = env.step(np.zeros(12, dtype=np.float32))
     v = env.core.obs[0, 7].item()
     assert info["reward_components"]["velocity_tracking"] == 300.0 * (1.0 - abs(v - 0.2))

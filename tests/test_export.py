@@ -16,8 +16,9 @@ from tensordict import TensorDict
 
 from rwalk import EnvConfig, ResidualWalkEnv, ResidualWalkVecEnv
 from rwalk.export import DEFAULT_PIECES, export_policy, input_layout, policy_input
-from rwalk.runners.checkpoints import SafeRunner
-from rwalk.runners.train import Args, make_env, rsl_rl_config
+from rwalk.rl.config import TrainArgs as Args
+from rwalk.rl.runner import SafeRunner
+from rwalk.rl.training import make_env, rsl_rl_config
 from rwalk.wrappers import RslRlVecEnv
 
 ARGS = dataclasses.replace(

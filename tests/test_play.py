@@ -38,8 +38,9 @@ def run(*args: str, argv0: str | None = None, env: dict | None = None):
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory) -> Path:
     """An rsl-rl checkpoint and the config.json beside it, as rwalk-train writes them."""
-    from rwalk.runners.checkpoints import SafeRunner
-    from rwalk.runners.train import Args, make_env, rsl_rl_config
+    from rwalk.rl.config import TrainArgs as Args
+    from rwalk.rl.runner import SafeRunner
+    from rwalk.rl.training import make_env, rsl_rl_config
 
     args = dataclasses.replace(
         Args(), num_envs=2, settle_steps=2, max_episode_steps=10, hidden_dims=(8,)

@@ -12,12 +12,9 @@ import torch
 from rwalk import EnvConfig
 from rwalk.constants import FOOT_GEOMS, GROUND_GEOM, JOINT_NAMES, OBS_CONTACT, TORSO_BODY
 from rwalk.core import Core
-from rwalk.randomization import (
-    NOMINAL_PARAMS,
-    ObservationNoise,
-    Pushes,
-    Randomization,
-)
+from rwalk.observations import ObservationNoise
+from rwalk.perturbations import Pushes
+from rwalk.randomization import NOMINAL_PARAMS, Randomization
 
 FAST = dict(settle_steps=10, model_path="model/world_flat.xml")
 
@@ -64,7 +61,7 @@ def test_drawn_physics_reach_each_simulation():
     dofs = [int(model.joint(name).dofadr[0]) for name in JOINT_NAMES]
     rand = Randomization()
     for i in range(3):
-        friction, payload, cx, cy, kp, force, damping, armature, latency = c.perturb.params[i]
+        friction, payload, cx, cy, kp, force, damping, armature, latency = c.physics.params[i]
         for low_high, value in zip(
             (rand.friction, rand.payload, rand.com_offset, rand.com_offset, rand.kp_scale,
              rand.force_scale, rand.damping_scale, rand.armature_scale),
@@ -73,7 +70,7 @@ def test_drawn_physics_reach_each_simulation():
         ):  # fmt: skip
             assert low_high[0] <= float(value) <= low_high[1]
         assert rand.latency[0] <= int(latency) <= rand.latency[1]
-        assert int(c.perturb.latency[i]) == int(latency)
+        assert int(c.physics.latency[i]) == int(latency)
         sim = c.sim.batch.get_model(i)
         for geom in (GROUND_GEOM, *FOOT_GEOMS):
             assert sim.geom(geom).friction[0] == float(friction)
@@ -87,19 +84,19 @@ def test_drawn_physics_reach_each_simulation():
         assert np.array_equal(sim.dof_armature[dofs], model.dof_armature[dofs] * float(armature))
         # set_const followed the mass: the subtree mass of the world holds the payload
         assert sim.body_subtreemass[0] == pytest.approx(model.body_subtreemass[0] + float(payload))
-    assert len({tuple(p.tolist()) for p in c.perturb.params}) == 3  # each env its own
+    assert len({tuple(p.tolist()) for p in c.physics.params}) == 3  # each env its own
 
 
 def test_fixed_values_and_a_new_draw_at_each_reset():
     c = core(n=2, randomization=Randomization.nominal(friction=(0.3, 0.3), payload=(0.2, 0.2)))
     expected = torch.tensor(NOMINAL_PARAMS, dtype=torch.float64)
     expected[0], expected[1] = 0.3, 0.2
-    assert torch.equal(c.perturb.params, expected.repeat(2, 1))
+    assert torch.equal(c.physics.params, expected.repeat(2, 1))
     r = core(n=2, randomization=Randomization())
-    before = r.perturb.params.clone()
+    before = r.physics.params.clone()
     r.reset(np.array([1]))
-    assert torch.equal(r.perturb.params[0], before[0])
-    assert not torch.equal(r.perturb.params[1], before[1])
+    assert torch.equal(r.physics.params[0], before[0])
+    assert not torch.equal(r.physics.params[1], before[1])
 
 
 def test_nominal_randomization_changes_no_bit():
@@ -114,24 +111,24 @@ def test_env_i_draws_like_a_batch_seeded_s_plus_i_at_any_thread_count():
     kw = dict(randomization=Randomization(), pushes=Pushes(interval=(0.05, 0.1)))
     batch = core(n=4, seed=10, num_threads=2, **kw)
     alone = core(n=1, seed=12, num_threads=1, **kw)
-    assert torch.equal(batch.perturb.params[2], alone.perturb.params[0])
+    assert torch.equal(batch.physics.params[2], alone.physics.params[0])
     other = core(n=4, seed=10, num_threads=1, **kw)
     zeros = torch.zeros(4, 12)
     for _ in range(15):
         assert torch.equal(batch.step(zeros).obs, other.step(zeros).obs)
         alone.step(torch.zeros(1, 12))
-    assert batch.perturb.pushes_done > 0
+    assert batch.pushes.done > 0
     assert torch.equal(batch.obs[2], alone.obs[0])
 
 
 def test_latency_delays_the_targets_by_whole_substeps():
     c = core(n=3, randomization=Randomization.nominal(latency=(0, 5)))
-    c.perturb.latency[:] = torch.tensor([0, 2, 5])
+    c.physics.latency[:] = torch.tensor([0, 2, 5])
     k = c.decimation
     previous = np.arange(3 * k * 12, dtype=np.float64).reshape(3, k, 12)
     current = -previous - 1.0
-    c.perturb.delay(previous)  # held: this period's targets
-    applied = c.perturb.delay(current)
+    c.physics.delay(previous)  # held: this period's targets
+    applied = c.physics.delay(current)
     assert np.array_equal(applied[0], current[0])
     assert np.array_equal(applied[1], np.concatenate((previous[1, k - 2 :], current[1, : k - 2])))
     assert np.array_equal(applied[2], previous[2])
@@ -141,19 +138,19 @@ def test_a_push_changes_the_torso_velocity_by_the_drawn_kick():
     speed = 0.2
     c = core(n=3, pushes=Pushes(speed=(speed, speed), interval=(0.02, 0.02)))
     before = np.array(c.sim.qvel[:, :2])
-    kick = c.perturb.kick.clone()
-    c.perturb.before_step()  # every env is due: one control step per interval
+    kick = c.pushes.kick.clone()
+    c.pushes.before_step()  # every env is due: one control step per interval
     assert np.array_equal(c.sim.qvel[:, :2], before + kick.numpy())
     assert torch.allclose(kick.norm(dim=-1), torch.full((3,), speed, dtype=torch.float64))
-    assert c.perturb.pushes_done == 3
-    assert not torch.equal(c.perturb.kick, kick)  # the next kick is a new draw
+    assert c.pushes.done == 3
+    assert not torch.equal(c.pushes.kick, kick)  # the next kick is a new draw
 
 
 def test_pushes_at_their_interval():
     c = core(n=2, pushes=Pushes(speed=(0.1, 0.1), interval=(0.1, 0.1)))  # every 5 steps
     for _ in range(20):
         c.step(torch.zeros(2, 12))
-    assert c.perturb.pushes_done == 2 * 4
+    assert c.pushes.done == 2 * 4
 
 
 def test_noise_on_the_policy_group_only():
@@ -190,7 +187,7 @@ def test_physics_piece_is_centred_and_scaled():
 def test_pickled_core_continues_identically():
     c = core(n=2, randomization=Randomization(), pushes=Pushes(interval=(0.05, 0.2)))
     copy = pickle.loads(pickle.dumps(c))
-    assert torch.equal(copy.perturb.params, c.perturb.params)
+    assert torch.equal(copy.physics.params, c.physics.params)
     for _ in range(10):
         assert torch.equal(c.step(torch.zeros(2, 12)).obs, copy.step(torch.zeros(2, 12)).obs)
 
@@ -203,6 +200,6 @@ def test_terrain_scale_refused_with_per_env_physics():
 
 def test_kick_direction_is_uniform_on_the_circle():
     c = core(n=400, pushes=Pushes(speed=(1.0, 1.0)))
-    angle = torch.atan2(c.perturb.kick[:, 1], c.perturb.kick[:, 0])
+    angle = torch.atan2(c.pushes.kick[:, 1], c.pushes.kick[:, 0])
     quadrants = torch.histc(angle, bins=4, min=-math.pi, max=math.pi)
     assert bool((quadrants > 60).all())

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from rwalk.runners.checkpoints import load_checkpoint
+from rwalk.rl.checkpoints import load_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY_TRAIN = [
@@ -77,7 +77,8 @@ def test_resume_continues_the_iteration_count(trained, tmp_path):
 
 def test_exported_policies_act_like_the_checkpoint(trained):
     from rwalk import ResidualWalkVecEnv
-    from rwalk.runners.play import eval_config, load_policy
+    from rwalk.evaluation import load_policy
+    from rwalk.runners.play import eval_config
     from rwalk.wrappers import RslRlVecEnv
 
     env = ResidualWalkVecEnv(4, eval_config(settle_steps=3), seed=0)

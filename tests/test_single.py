@@ -8,6 +8,7 @@ import torch
 
 from rwalk import EnvConfig, ResidualWalkEnv
 from rwalk.core import ResidualWalkCore
+from rwalk.envs.single_step import SingleStep
 from rwalk.rewards import TERM_NAMES
 
 # Large residuals make falls (terminations) common; short episodes add truncations.
@@ -66,23 +67,23 @@ def test_single_step_and_batched_step_of_one_core_mix():
             got = mixed.step(action)
             assert torch.equal(got.reward, want.reward)
         else:
-            assert mixed.step_single(action[0].numpy()).reward == want.reward.item()
+            assert SingleStep(mixed).step(action[0].numpy()).reward == want.reward.item()
         assert torch.equal(mixed.obs, plain.obs) and torch.equal(mixed.tick, plain.tick)
 
 
-def test_step_single_refuses_a_batch_and_bad_actions():
+def test_the_single_step_refuses_a_batch_and_bad_actions():
     core = ResidualWalkCore(dataclasses.replace(CONFIG, settle_steps=0), 2, seed=0)
     core.reset()
     with pytest.raises(ValueError, match="num_envs=2"):
-        core.step_single(np.zeros(12))
-    single = ResidualWalkCore(dataclasses.replace(CONFIG, settle_steps=0), 1, seed=0)
-    single.reset()
+        SingleStep(core)
+    single = SingleStep(ResidualWalkCore(dataclasses.replace(CONFIG, settle_steps=0), 1, seed=0))
+    single.core.reset()
     with pytest.raises(ValueError, match="non-finite value nan"):
-        single.step_single(np.array([0.0] * 5 + [np.nan] + [0.0] * 6))
+        single.step(np.array([0.0] * 5 + [np.nan] + [0.0] * 6))
     with pytest.raises(ValueError, match="float32 or float64"):
-        single.step_single(np.zeros(12, dtype=np.float16))
+        single.step(np.zeros(12, dtype=np.float16))
     # Integer actions are accepted, as by the batched step.
-    single.step_single(np.zeros(12, dtype=np.int64))
+    single.step(np.zeros(12, dtype=np.int64))
 
 
 def test_single_bench_smoke(capsys):

@@ -10,14 +10,16 @@ import numpy as np
 import pytest
 import torch
 
-from rwalk import EnvConfig, ResidualWalkVecEnv
+from rwalk import EnvConfig, ResidualWalkVecEnv, robustness
 from rwalk.constants import FOOT_SITES, OBS_POS
-from rwalk.core import Core, _observation
+from rwalk.core import Core
+from rwalk.evaluation import Evaluation
 from rwalk.levels import TerrainLevels
+from rwalk.perturbations import Pushes
 from rwalk.presets import PAD_SPREAD, training_config
-from rwalk.randomization import Pushes, Randomization
-from rwalk.runners import robustness
-from rwalk.runners.play import Evaluation
+from rwalk.randomization import Randomization
+from rwalk.runners import robustness as robustness_runner
+from rwalk.starts import sensor_observation as _observation
 from rwalk.wrappers import RslRlVecEnv
 
 SMALL = TerrainLevels(levels=4, tile_length=3.0, pad_length=0.8, seed=1)
@@ -138,7 +140,7 @@ def test_same_seed_same_world_and_trajectory_at_any_thread_count():
             done = (result.terminated | result.truncated).nonzero().squeeze(-1)
             c.reset(done.numpy())
             trace.append(c.obs.clone())
-        runs.append((torch.stack(trace), c.perturb.params.clone(), c.terrain_level.clone()))
+        runs.append((torch.stack(trace), c.physics.params.clone(), c.terrain_level.clone()))
     assert all(torch.equal(a, b) for a, b in zip(*runs, strict=True))
 
 
@@ -180,7 +182,7 @@ def test_robustness_conditions_and_floors():
 
 def test_robustness_runs_paired_episodes_and_writes_its_rows(tmp_path, capsys):
     out = tmp_path / "r.json"
-    robustness.main(
+    robustness_runner.main(
         ["--episodes", "2", "--max-steps", "20", "--settle-steps", "5", "--conditions",
          "pushes", "new maps", "--json", str(out), "--plot", str(tmp_path / "r.png")]
     )  # fmt: skip
@@ -193,7 +195,7 @@ def test_robustness_runs_paired_episodes_and_writes_its_rows(tmp_path, capsys):
     assert (tmp_path / "r.png").stat().st_size > 0
     printed = capsys.readouterr().out
     assert "| pushes | base gait |" in printed
-    robustness.main(["--tables", str(out)])
+    robustness_runner.main(["--tables", str(out)])
     assert "| new maps | base gait |" in capsys.readouterr().out
 
 
@@ -225,8 +227,9 @@ def test_checkpoints_carry_the_curriculum(tmp_path):
     import dataclasses
     import io
 
-    from rwalk.runners.checkpoints import SafeRunner
-    from rwalk.runners.train import Args, make_env, rsl_rl_config
+    from rwalk.rl.config import TrainArgs as Args
+    from rwalk.rl.runner import SafeRunner
+    from rwalk.rl.training import make_env, rsl_rl_config
 
     args = dataclasses.replace(
         Args(), num_envs=8, settle_steps=2, max_episode_steps=30, hidden_dims=(8,)

@@ -17,8 +17,9 @@ import pytest
 import torch
 from test_runners import ROOT, TINY_TRAIN
 
-from rwalk.runners import train, train_torchrl
-from rwalk.runners.checkpoints import (
+from rwalk.cli import build_parser, command, parse_dataclass
+from rwalk.rl import training
+from rwalk.rl.checkpoints import (
     LOCK_NAME,
     CheckpointError,
     RunSetupError,
@@ -28,7 +29,7 @@ from rwalk.runners.checkpoints import (
     run_lock,
     save_checkpoint,
 )
-from rwalk.runners.cli import build_parser, command, parse_dataclass
+from rwalk.runners import train, train_torchrl
 
 TINY = [*TINY_TRAIN, "--no-export"]
 
@@ -257,7 +258,7 @@ def test_a_stale_lock_is_taken_over_and_removed_at_the_end(tmp_path, capsys):
 def test_save_interval_saves_its_multiples_and_the_last_iteration(tmp_path):
     args = train.parse_args([*TINY, "--log-dir", str(tmp_path), "--max-iterations", "7",
                              "--save-interval", "3"])  # fmt: skip
-    assert train.train(args).name == "model_6.pt"
+    assert training.train(args).name == "model_6.pt"
     assert iterations(tmp_path) == [0, 3, 6]
     tiny_train(tmp_path, "--max-iterations", "9", "--save-interval", "3", "--resume", str(tmp_path))
     assert iterations(tmp_path) == [0, 3, 6, 8]
@@ -426,8 +427,8 @@ def test_the_time_budget_does_not_count_building_the_envs_as_an_iteration(tmp_pa
     # A 30-minute run stopped after iteration 0: 1.4 minutes of env building were taken
     # for the time of one iteration, so 25 more looked like 37 minutes.
     clock = [0.0]
-    monkeypatch.setattr(train.time, "perf_counter", lambda: clock[0])
-    make_env, learn = train.make_env, train.SafeRunner.learn
+    monkeypatch.setattr(training.time, "perf_counter", lambda: clock[0])
+    make_env, learn = training.make_env, training.SafeRunner.learn
 
     def slow_make_env(args):
         clock[0] += 100.0  # building takes 100 s
@@ -437,8 +438,8 @@ def test_the_time_budget_does_not_count_building_the_envs_as_an_iteration(tmp_pa
         clock[0] += 1.0 * num_learning_iterations
         return learn(self, num_learning_iterations, **kwargs)
 
-    monkeypatch.setattr(train, "make_env", slow_make_env)
-    monkeypatch.setattr(train.SafeRunner, "learn", learn_one_second_each)
+    monkeypatch.setattr(training, "make_env", slow_make_env)
+    monkeypatch.setattr(training.SafeRunner, "learn", learn_one_second_each)
     tiny_train(tmp_path, "--max-minutes", "5", "--max-iterations", "10", "--save-interval", "5")
     assert iterations(tmp_path) == [0, 5, 9]  # 110 s of a 300 s budget: every iteration ran
 

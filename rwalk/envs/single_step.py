@@ -62,9 +62,7 @@ class SingleStep:
     def supports(core: Core) -> bool:
         """Whether ``SingleStep`` can step ``core``: one env of a task with a float
         pipeline (``Task.single_step``: the residual task), without velocity commands."""
-        return (
-            core.num_envs == 1 and core.task.single_step and core.config.command_range is None
-        )
+        return core.num_envs == 1 and core.task.single_step and core.config.command_range is None
 
     def __init__(self, core: Core) -> None:
         if core.num_envs != 1:
@@ -78,6 +76,13 @@ class SingleStep:
         self._swing = tuple(tuple(row) for row in controller.swing_table.tolist())
         self._sensors = core.sim.sensordata[0]
         self._bind()
+
+    def __getstate__(self) -> dict:
+        """Only the core: the views of its arrays are rebuilt on unpickling."""
+        return {"core": self.core}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["core"])
 
     def _bind(self) -> None:
         """Numpy views of the core's state tensors (they share memory)."""

@@ -23,16 +23,14 @@ from pathlib import Path
 from typing import IO, Any
 
 import torch
-from rsl_rl.runners import OnPolicyRunner
-
-from rwalk.runners import distributed
 
 CHECKPOINT_NAME = re.compile(r"model_(\d+)\.pt")
 """rsl-rl's checkpoint names; group 1 is the iteration."""
 LOCK_NAME = ".rwalk.lock"
 """The lock file of a run folder; holds the pid of the process writing to it."""
 TRAINER = "rsl_rl"
-"""The ``"trainer"`` entry of checkpoints that ``SafeRunner`` writes (train_torchrl: "torchrl")."""
+"""The ``"trainer"`` entry of checkpoints that ``rwalk.rl.runner.SafeRunner`` writes
+(rwalk-train-torchrl's: "torchrl")."""
 
 
 class CheckpointError(ValueError):
@@ -117,7 +115,7 @@ def load_checkpoint(path: str | os.PathLike[str], data: bytes | None = None) -> 
 
 
 def check_rsl_rl(loaded: dict[str, Any], path: str | os.PathLike[str]) -> dict[str, Any]:
-    """``loaded`` (from ``load_checkpoint(path)``) if it is an rsl-rl save from ``SafeRunner``.
+    """``loaded`` (from ``load_checkpoint(path)``) if it is an rsl-rl save from rwalk-train.
 
     Raises:
         CheckpointError: naming the path, if another trainer wrote it or it lacks ``"iter"``.
@@ -247,75 +245,47 @@ def remove_unfinished_writes(folder: str | os.PathLike[str]) -> list[Path]:
     return leftovers
 
 
-class SafeRunner(OnPolicyRunner):
-    """rsl-rl's ``OnPolicyRunner`` whose checkpoints are written atomically and read as data,
-    and whose data-parallel training runs on CPU processes (gloo) under torchrun.
+def claim_log_dir(
+    log_dir: Path,
+    resume: tuple[Path, int] | None,
+    resumed_from_folder: bool,
+    overwrite: bool,
+    report: Callable[[str], None] = print,
+) -> None:
+    """Make ``log_dir`` this run's own: refuse one that holds another run's checkpoints
+    (or, resuming from it, newer ones that would be overwritten) unless ``overwrite``,
+    which deletes them; delete temporary files of killed writes. Call while holding its
+    lock.
 
-    Checkpoints carry ``"trainer": "rsl_rl"`` (rsl-rl's ``alg.load`` ignores
-    keys it does not know).
+    Args:
+        resume: the checkpoint resumed from and its iteration, or None.
+        resumed_from_folder: --resume named a folder (its newest checkpoint that loads).
+
+    Raises:
+        RunSetupError: naming the folder and the flags that would allow the run.
     """
-
-    def _configure_multi_gpu(self) -> None:
-        """rsl-rl's multi-GPU setup for CPU processes: join a gloo group (torchrun's
-        variables; ``rwalk.runners.distributed``) instead of NCCL on ``cuda:LOCAL_RANK``,
-        and fill ``cfg["multi_gpu"]`` as rsl-rl's PPO reads it. A single process
-        (WORLD_SIZE unset or 1) sets nothing up; a CUDA device keeps rsl-rl's own setup.
-        """
-        if str(self.device).startswith("cuda"):
-            super()._configure_multi_gpu()
-            return
-        group = distributed.Group.from_env()
-        self.gpu_world_size = group.world_size
-        self.gpu_global_rank = group.rank
-        self.gpu_local_rank = group.local_rank
-        self.is_distributed = group.distributed
-        distributed.join(group)  # a no-op if rwalk-train joined it already, with its timeout
-        self.cfg["multi_gpu"] = distributed.multi_gpu_config(group)
-
-    _saved: tuple[str, int] | None = None
-    """(path, iteration) of the last save."""
-
-    def save(self, path: str, infos: dict | None = None) -> None:
-        """Write the algorithm's state and the iteration to ``path`` atomically.
-
-        rsl-rl's ``learn()`` saves its last iteration twice when that iteration
-        is a multiple of ``cfg["save_interval"]`` (in its loop and after it);
-        the repeated save of the same iteration to the same path is skipped.
-        """
-        if self._saved == (str(path), self.current_learning_iteration):
-            return
-        saved = self.alg.save()
-        saved["iter"] = self.current_learning_iteration
-        saved["infos"] = infos
-        saved["trainer"] = TRAINER
-        core = getattr(self.env, "core", None)
-        if core is not None and core.terrain_map is not None:
-            saved["terrain_level"] = core.terrain_level.clone()  # the curriculum's state
-        save_checkpoint(saved, path)
-        self._saved = (str(path), self.current_learning_iteration)
-        self.logger.save_model(path, self.current_learning_iteration)
-
-    def load(
-        self,
-        path: str,
-        load_cfg: dict | None = None,
-        strict: bool = True,
-        map_location: str | None = None,
-        data: bytes | None = None,
-    ) -> dict | None:
-        """Load the state ``path`` holds (``data``: its bytes, read by rank 0)."""
-        loaded = check_rsl_rl(load_checkpoint(path, data), path)
-        if self.alg.load(loaded, load_cfg, strict):
-            self.current_learning_iteration = loaded["iter"]
-        core = getattr(self.env, "core", None)
-        levels = loaded.get("terrain_level")
-        if core is not None and core.terrain_map is not None and levels is not None:
-            if levels.shape == core.terrain_level.shape:
-                # The curriculum goes on where it was: from each env's next start.
-                core.terrain_level.copy_(levels.clamp(0, core.config.terrain_levels.levels - 1))
-            else:
-                print(
-                    f"[rwalk] {path}: terrain levels of {levels.numel()} envs, this run has "
-                    f"{core.num_envs}: the curriculum starts again at the start level"
-                )
-        return loaded.get("infos")
+    resumed, resumed_it = resume if resume else (None, -1)
+    own = resumed is not None and resumed.parent.resolve() == log_dir.resolve()
+    if own and resumed_from_folder:
+        old = []
+    else:  # with a file in it, those newer than the file
+        old = [path for it, path in checkpoint_files(log_dir) if not own or it > resumed_it]
+    if old and overwrite:
+        events = [] if own else list(log_dir.glob("events.out.tfevents.*"))
+        for path in [*old, *events]:
+            path.unlink()
+        report(f"--overwrite: deleted {len(old)} checkpoints and {len(events)} event files")
+    elif old and own:
+        raise RunSetupError(
+            f"--resume {resumed} is not the newest checkpoint in {log_dir} (there is "
+            f"{old[-1].name}): training on from it would overwrite the newer ones; pass "
+            f"--overwrite to delete them, or --resume {log_dir} to continue from the newest"
+        )
+    elif old:
+        raise RunSetupError(
+            f"--log-dir {log_dir} already holds another run's checkpoints ({old[0].name} .. "
+            f"{old[-1].name}); pass --resume {log_dir} to continue that run, --overwrite to "
+            "replace it, or choose another --log-dir"
+        )
+    for path in remove_unfinished_writes(log_dir):
+        report(f"deleted {path.name}, the unfinished write of a killed run")

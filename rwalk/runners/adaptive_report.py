@@ -24,8 +24,8 @@ import numpy as np
 import torch
 
 from rwalk import ResidualWalkVecEnv, presets
-from rwalk.runners.cli import NATURAL_INT, POSITIVE_INT, UNIT_FLOAT
-from rwalk.runners.play import Evaluation, evaluate, load_policy, saved_args
+from rwalk.cli import NATURAL_INT, POSITIVE_INT, UNIT_FLOAT
+from rwalk.evaluation import Evaluation, evaluate, load_policy, saved_args
 from rwalk.tasks.adaptive_gait import ADAPTED
 
 SPEEDS = (0.05, 0.10, 0.15, 0.20, 0.25)
@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> None:
     for label, rows in out.items():
         print(f"\n({label})\n{table(rows)}")
     args.out.mkdir(parents=True, exist_ok=True)
-    from rwalk.runners.checkpoints import atomic_write_text
+    from rwalk.rl.checkpoints import atomic_write_text
 
     data = {k: [dataclasses.asdict(r) for r in rows] for k, rows in out.items()}
     traces = {

@@ -368,8 +368,9 @@ def measure_robust(n: int, threads: int, window: float) -> dict:
 
 
 def measure_rsl_rl(n: int, threads: int, window: float) -> dict:
-    from rwalk.runners.checkpoints import SafeRunner
-    from rwalk.runners.train import Args, make_env, rsl_rl_config
+    from rwalk.rl.config import TrainArgs as Args
+    from rwalk.rl.runner import SafeRunner
+    from rwalk.rl.training import make_env, rsl_rl_config
 
     # The plain training env, as in (b) and docs/performance.md; mode r times the robust one.
     args = dataclasses.replace(Args(), num_envs=n, threads=threads, robust=False)
@@ -843,7 +844,7 @@ def _sweep(args: argparse.Namespace) -> tuple[list[dict], int]:
     for line in summary(results):
         print(line)
     if args.json:
-        from rwalk.runners.checkpoints import atomic_write_text
+        from rwalk.rl.checkpoints import atomic_write_text
 
         atomic_write_text(args.json, json.dumps(results, indent=2))
     if args.plot:

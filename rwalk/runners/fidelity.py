@@ -35,10 +35,10 @@ import numpy as np
 import torch
 
 from rwalk.analysis import WalkReport, walk
+from rwalk.cli import POSITIVE_FLOAT, POSITIVE_INT, command
 from rwalk.core import ResidualWalkCore
 from rwalk.physics import Physics
 from rwalk.presets import base_gait_config
-from rwalk.runners.cli import POSITIVE_FLOAT, POSITIVE_INT, command
 
 PROG = command("rwalk.runners.fidelity")
 WORLDS = {"flat": "model/world_flat.xml", "rough": "model/world_train.xml"}
@@ -135,8 +135,8 @@ def policy_loader(checkpoint: Path):
     """(config, robots, seed) -> (core, act) for a trained rsl-rl checkpoint."""
 
     def load(config, robots: int, seed: int):
-        from rwalk.envs.vec_env import ResidualWalkVecEnv
-        from rwalk.runners.play import load_policy
+        from rwalk.envs.torchrl_env import ResidualWalkVecEnv
+        from rwalk.evaluation import load_policy
 
         vec = ResidualWalkVecEnv(robots, config, seed=seed)
         return vec.core, load_policy(checkpoint, vec)
@@ -231,7 +231,7 @@ def plot(results: dict, path: Path) -> None:
     ax.set_title("Physics candidates: cost vs fidelity (≤ 1 is faithful)")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    from rwalk.runners.checkpoints import atomic_write
+    from rwalk.rl.checkpoints import atomic_write
 
     atomic_write(path, lambda file: fig.savefig(file, format="png", dpi=120))
     plt.close(fig)
@@ -307,7 +307,7 @@ def fidelity(argv: list[str] | None = None) -> dict:
     results["cost"] = measure_costs(args.only, args.cost_envs, args.cost_rounds, args.cost_window)
     print(table(results))
     if args.json is not None:
-        from rwalk.runners.checkpoints import atomic_write_text
+        from rwalk.rl.checkpoints import atomic_write_text
 
         atomic_write_text(args.json, json.dumps(results, indent=1))
     if args.plot is not None:

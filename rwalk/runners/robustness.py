@@ -1,27 +1,15 @@
 """The robustness benchmark: the base gait and policies under conditions never used in training.
 
-    python -m runners.robustness --checkpoint logs/robust/model_600.pt \\
+    rwalk-robustness --checkpoint logs/robust/model_600.pt \\
         --checkpoint today=logs/res_t06/model_475.pt --episodes 100 --json docs/robustness.json \\
         --plot docs/robustness.png
 
 Every row of a condition runs the same --episodes paired episodes: episode i
 starts like a single env seeded --seed + i, with the same drawn physics and the
-same kicks, whichever policy walks. Conditions (CONDITIONS; the training's
-ranges are in ``rwalk.randomization`` and ``rwalk.levels``):
-
-- nominal: the evaluation of docs/results.md (rough world at scale 1.0, nothing randomised);
-- new maps: terrain-levels maps from fresh seeds, at --map-level;
-- rougher: rough tiles 1.3 x the training's roughest (9.1 cm peak to peak), fresh seed;
-- low / high friction: 0.3 and 2.0 (training 0.5-1.3);
-- payload: +0.2 kg on the torso (training up to +0.12);
-- weak servos: gain and torque limit x 0.7 (training 0.85-1.15);
-- pushes: 0.3 m/s kicks (0.24 N·s on the 0.8 kg robot) every 2 s (training up to 0.15 m/s);
-- latency: servo targets 4 substeps (16 ms) late (training up to 2).
-
-Policies are evaluated without observation noise. Prints one table per
-condition with each policy's floors (falls <= 1/4 of the base gait's and <= 3%,
-velocity error <= 1/2 of the base gait's; nominal: error <= 0.02 m/s, falls <= 2%),
-writes every row to --json and, with --plot, a bar chart.
+same kicks, whichever policy walks. The conditions, floors, table and plot are
+``rwalk.robustness``'s: nominal, new maps, rougher ground, low and high friction,
+payload, weak servos, pushes and latency. Prints one table per condition with
+each policy's floors, writes every row to --json and, with --plot, a bar chart.
 """
 
 from __future__ import annotations
@@ -29,179 +17,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-from collections.abc import Callable
 from pathlib import Path
 
-from rwalk import EnvConfig, ResidualWalkVecEnv, presets
+from rwalk.cli import NATURAL_INT, POSITIVE_INT, command
+from rwalk.evaluation import Evaluation
 from rwalk.levels import TerrainLevels
-from rwalk.randomization import Pushes, Randomization
-from rwalk.runners.cli import NATURAL_INT, POSITIVE_INT
-from rwalk.runners.play import Evaluation, evaluate, load_policy
-
-#: Seed of the held-out maps (training uses TerrainLevels' default seed 0).
-HELD_OUT_MAP_SEED = 1234
-#: Settling on a map's pad: the training's (500 steps of gait would walk off the 0.8 m pad).
-MAP_SETTLE_STEPS = 100
-
-
-def _map(base: EnvConfig, levels: TerrainLevels) -> EnvConfig:
-    return dataclasses.replace(
-        base,
-        terrain_levels=levels,
-        position_noise=presets.PAD_SPREAD,
-        settle_steps=min(base.settle_steps, MAP_SETTLE_STEPS),
-    )
-
-
-def _physics(**ranges) -> Callable[[EnvConfig, int], EnvConfig]:
-    return lambda base, level: dataclasses.replace(
-        base, randomization=Randomization.nominal(**ranges)
-    )
-
-
-#: name -> (what it is, the config from the nominal evaluation's and --map-level).
-CONDITIONS: dict[str, tuple[str, Callable[[EnvConfig, int], EnvConfig]]] = {
-    "nominal": ("rough world at scale 1.0, nothing randomised", lambda base, level: base),
-    "new maps": (
-        f"terrain-levels map seed {HELD_OUT_MAP_SEED}, every kind, one level",
-        lambda base, level: _map(
-            base, TerrainLevels(seed=HELD_OUT_MAP_SEED, start_level=level, curriculum=False)
-        ),
-    ),
-    "rougher": (
-        "rough tiles at 9.1 cm peak to peak (training's top: 7 cm)",
-        lambda base, level: _map(
-            base,
-            TerrainLevels(
-                seed=HELD_OUT_MAP_SEED + 1,
-                kinds=("rough",),
-                roughness=0.091,
-                start_level=TerrainLevels().levels - 1,
-                curriculum=False,
-            ),
-        ),
-    ),
-    "low friction": ("friction 0.3 (training 0.5-1.3)", _physics(friction=(0.3, 0.3))),
-    "high friction": ("friction 2.0 (training 0.5-1.3)", _physics(friction=(2.0, 2.0))),
-    "payload": ("+0.2 kg on the torso (training -0.05..+0.12)", _physics(payload=(0.2, 0.2))),
-    "weak servos": (
-        "servo gain and torque limit x 0.7 (training 0.85-1.15)",
-        _physics(kp_scale=(0.7, 0.7), force_scale=(0.7, 0.7)),
-    ),
-    "pushes": (
-        "0.3 m/s kicks (0.24 N·s) every 2 s (training up to 0.15 m/s every 2-5 s)",
-        lambda base, level: dataclasses.replace(
-            base, pushes=Pushes(speed=(0.3, 0.3), interval=(2.0, 2.0))
-        ),
-    ),
-    "latency": ("servo targets 16 ms late (training up to 8 ms)", _physics(latency=(4, 4))),
-}
-
-
-@dataclasses.dataclass(frozen=True)
-class Row:
-    condition: str
-    policy: str
-    evaluation: Evaluation
-
-
-def condition_config(
-    name: str, map_level: int = 6, max_steps: int = 1000, settle_steps: int = 500
-) -> EnvConfig:
-    """The episodes of condition ``name`` (the evaluation's: ``max_steps`` long after
-    ``settle_steps`` of settling; on a map at most MAP_SETTLE_STEPS).
-
-    Raises:
-        ValueError: an unknown condition (listing them), or a level outside the map.
-    """
-    if name not in CONDITIONS:
-        raise ValueError(f"unknown condition {name!r}; choose from {tuple(CONDITIONS)}")
-    base = presets.evaluation_config(max_steps=max_steps, settle_steps=settle_steps)
-    return CONDITIONS[name][1](base, map_level)
-
-
-def run_condition(
-    name: str, policies: dict[str, Path | None], episodes: int, seed: int, config: EnvConfig
-) -> list[Row]:
-    """Every policy (None: the base gait) on the same paired episodes of one condition."""
-    env = ResidualWalkVecEnv(episodes, config, seed=seed)
-    rows = []
-    for label, checkpoint in policies.items():
-        policy = None if checkpoint is None else load_policy(checkpoint, env)
-        rows.append(Row(name, label, evaluate(label, env, seed, policy)))
-    return rows
-
-
-def floors(rows: list[Row]) -> dict[str, str]:
-    """Each policy's verdict on its condition's floors (the base gait's row is the reference)."""
-    base = next(r.evaluation for r in rows if r.policy == "base gait")
-    verdicts = {}
-    for row in rows:
-        if row.policy == "base gait":
-            continue
-        e = row.evaluation
-        if row.condition == "nominal":
-            ok = e.velocity_error <= 0.02 and e.fall_rate <= 0.02
-        else:
-            ok = (
-                e.fall_rate <= base.fall_rate / 4
-                and e.fall_rate <= 0.03
-                and e.velocity_error <= base.velocity_error / 2
-            )
-        verdicts[row.policy] = "met" if ok else "missed"
-    return verdicts
-
-
-def table(rows: list[Row]) -> str:
-    verdicts = {}
-    for condition in dict.fromkeys(r.condition for r in rows):
-        verdicts |= {
-            (condition, p): v
-            for p, v in floors([r for r in rows if r.condition == condition]).items()
-        }
-    lines = [
-        "| condition | policy | falls | forward velocity (m/s) | velocity error (m/s) | floors |",
-        "| --- | --- | --- | --- | --- | --- |",
-    ]
-    for r in rows:
-        e = r.evaluation
-        lines.append(
-            f"| {r.condition} | {r.policy} | {e.fall_rate:.0%} | {e.forward_velocity:.3f} | "
-            f"{e.velocity_error:.4f} ± {1.96 * e.velocity_error_se:.4f} | "
-            f"{verdicts.get((r.condition, r.policy), '-')} |"
-        )
-    return "\n".join(lines)
-
-
-def plot(rows: list[Row], path: Path) -> None:
-    """Falls and velocity error per condition, one bar per policy."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    conditions = list(dict.fromkeys(r.condition for r in rows))
-    policies = list(dict.fromkeys(r.policy for r in rows))
-    width = 0.8 / len(policies)
-    x = np.arange(len(conditions))
-    fig, axes = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
-    for i, policy in enumerate(policies):
-        by = {r.condition: r.evaluation for r in rows if r.policy == policy}
-        falls = [100 * by[c].fall_rate for c in conditions]
-        error = [by[c].velocity_error for c in conditions]
-        se = [1.96 * by[c].velocity_error_se for c in conditions]
-        axes[0].bar(x + i * width, falls, width, label=policy)
-        axes[1].bar(x + i * width, error, width, yerr=se, capsize=2, label=policy)
-    axes[0].set_ylabel("falls (% of episodes)")
-    axes[1].set_ylabel("velocity error (m/s)")
-    axes[1].set_xticks(x + width * (len(policies) - 1) / 2, conditions, rotation=20)
-    axes[0].legend()
-    for ax in axes:
-        ax.grid(axis="y", alpha=0.3)
-    fig.suptitle("Robustness: paired episodes per condition (95% interval on the error)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
+from rwalk.rl.checkpoints import atomic_write_text
+from rwalk.robustness import CONDITIONS, Row, condition_config, plot, run_condition, table
 
 
 def _checkpoint(text: str) -> tuple[str, Path]:
@@ -215,22 +37,34 @@ def _checkpoint(text: str) -> tuple[str, Path]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+        prog=command("rwalk.runners.robustness"), description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )  # fmt: skip
     add = parser.add_argument
-    add("--checkpoint", type=_checkpoint, action="append", default=[],
-        help="[LABEL=]PATH of an rwalk-train checkpoint (repeat for several)")  # fmt: skip
+    add(
+        "--checkpoint",
+        type=_checkpoint,
+        action="append",
+        default=[],
+        help="[LABEL=]PATH of an rwalk-train checkpoint (repeat for several)",
+    )
     add("--episodes", type=POSITIVE_INT, default=100, help="paired episodes per condition")
     add("--seed", type=NATURAL_INT, default=1000, help="first episode's seed")
     add("--map-level", type=NATURAL_INT, default=6, help="level of the 'new maps' condition")
     add("--max-steps", type=POSITIVE_INT, default=1000, help="episode length (env steps)")
     add("--settle-steps", type=NATURAL_INT, default=500, help="settling before each episode")
-    add("--conditions", nargs="+", default=list(CONDITIONS), choices=list(CONDITIONS),
-        metavar="NAME", help=f"conditions to run (default: all of {list(CONDITIONS)})")  # fmt: skip
+    add(
+        "--conditions",
+        nargs="+",
+        default=list(CONDITIONS),
+        choices=list(CONDITIONS),
+        metavar="NAME",
+        help=f"conditions to run (default: all of {list(CONDITIONS)})",
+    )
     add("--json", type=Path, help="write every row here")
     add("--plot", type=Path, help="write the bar chart here (PNG)")
     add("--tables", type=Path, help="only print the table (and --plot) of a written --json")
-    args = parser.parse_args(argv)
+    args = parser.parse_args(argv)  # fmt: skip
     if args.tables:
         data = json.loads(args.tables.read_text())
         rows = [
@@ -248,8 +82,6 @@ def main(argv: list[str] | None = None) -> None:
             rows += run_condition(name, policies, args.episodes, args.seed, config)
             print(table([r for r in rows if r.condition == name]).split("\n", 2)[2], flush=True)
         if args.json:
-            from rwalk.runners.checkpoints import atomic_write_text
-
             data = {
                 "episodes": args.episodes, "seed": args.seed, "map_level": args.map_level,
                 "max_steps": args.max_steps, "settle_steps": args.settle_steps,

@@ -25,10 +25,10 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
+from rwalk.cli import POSITIVE_INT
 from rwalk.config import EnvConfig
 from rwalk.envs.gym_env import ResidualWalkEnv
 from rwalk.physics import Physics
-from rwalk.runners.cli import POSITIVE_INT
 
 #: The physics settings measured: (label, timestep in seconds).
 CASES: tuple[tuple[str, float], ...] = (("10 x 2 ms", 0.002), ("5 x 4 ms", 0.004))

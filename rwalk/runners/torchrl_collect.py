@@ -33,7 +33,7 @@ from torchrl.collectors import BaseCollector, Collector
 from torchrl.envs import CatTensors, Compose, ObservationNorm, RewardScaling, TransformedEnv
 
 from rwalk import ResidualWalkVecEnv, presets
-from rwalk.runners.checkpoints import RunSetupError
+from rwalk.rl.checkpoints import RunSetupError
 
 if TYPE_CHECKING:
     from rwalk.runners.train_torchrl import Args

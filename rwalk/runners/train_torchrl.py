@@ -46,18 +46,18 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from rwalk.runners.checkpoints import (
-    RunSetupError,
-    atomic_write_text,
-    run_lock,
-    save_checkpoint,
-)
-from rwalk.runners.cli import (
+from rwalk.cli import (
     command,
     parse_dataclass,
     require_at_least,
     require_in,
     require_positive,
+)
+from rwalk.rl.checkpoints import (
+    RunSetupError,
+    atomic_write_text,
+    run_lock,
+    save_checkpoint,
 )
 from rwalk.runners.torchrl_collect import (
     BACKENDS,

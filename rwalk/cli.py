@@ -1,6 +1,9 @@
-"""Command lines from frozen dataclasses: every field a --flag, its metadata["help"] the help.
+"""Command lines from frozen config dataclasses: every field a --flag, its docstring the help.
 
-A dataclass checks its own values in ``__post_init__`` with the ``require_*``
+The configs are the source of truth: ``combine`` makes one flat dataclass of
+the fields of several configs (a runner's ``Args``: one flag per field, the
+same names), and each config is rebuilt from it (``args.train``, ...). A
+config checks its own values in ``__post_init__`` with the ``require_*``
 helpers below, whose messages name the flag (``--save-interval must be >= 1,
 got 0``); ``parse_dataclass`` turns such a ``ValueError`` into argparse's usage
 error (exit status 2).
@@ -9,10 +12,15 @@ error (exit status 2).
 from __future__ import annotations
 
 import argparse
+import ast
+import dataclasses
+import inspect
 import math
 import sys
+import textwrap
 from collections.abc import Callable
 from dataclasses import MISSING, fields
+from functools import cache
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -27,28 +35,120 @@ def flag(name: str) -> str:
 def command(module: str) -> str:
     """How the user started this runner, for the usage line: the console script's name
     (``rwalk-train``) when run as one, else ``python -m <module>``."""
-    name = Path(sys.argv[0]).name
+    name = Path(sys.argv[0]).name if sys.argv and sys.argv[0] else ""
     return name if name.startswith("rwalk-") else f"python -m {module}"
+
+
+@cache
+def field_docs(cls: type) -> dict[str, str]:
+    """The docstring under each field of a dataclass (and of its dataclass bases), joined
+    into one line; fields without one are absent."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        try:
+            source = textwrap.dedent(inspect.getsource(klass))
+        except (OSError, TypeError):
+            continue
+        body = ast.parse(source).body
+        if not body or not isinstance(body[0], ast.ClassDef):
+            continue
+        statements = body[0].body
+        for node, after in zip(statements, statements[1:], strict=False):
+            doc = getattr(after, "value", None)
+            if (
+                isinstance(node, ast.AnnAssign)
+                and isinstance(node.target, ast.Name)
+                and isinstance(after, ast.Expr)
+                and isinstance(doc, ast.Constant)
+                and isinstance(doc.value, str)
+            ):
+                docs[node.target.id] = " ".join(doc.value.split())
+    return docs
+
+
+def field_help(cls: type, f: dataclasses.Field) -> str | None:
+    """A field's help: its ``metadata["help"]``, else its docstring."""
+    return f.metadata.get("help") or field_docs(cls).get(f.name)
+
+
+def default_of(f: dataclasses.Field) -> Any:
+    return f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
+
+
+def combine(
+    name: str,
+    parts: dict[str, type],
+    defaults: dict[str, Any] | None = None,
+    exclude: tuple[str, ...] = (),
+    doc: str | None = None,
+    namespace: dict[str, Any] | None = None,
+) -> type:
+    """One frozen dataclass with every field of the config dataclasses ``parts`` (but
+    ``exclude``), in order, with their help: a command line of one flag per field.
+
+    An instance checks its values by building each part (whose ``__post_init__``
+    checks them, naming the flag) and offers each part as the attribute of its key
+    (``args.train``). ``defaults`` overrides fields' defaults (a runner's own);
+    ``namespace`` adds methods, and a method ``check`` runs after the parts' checks
+    (checks across parts).
+
+    Raises:
+        TypeError: if two parts share a field name.
+    """
+    defaults = defaults or {}
+    owners: dict[str, str] = {}
+    specs = []
+    for key, part in parts.items():
+        for f in fields(part):
+            if f.name in exclude:
+                continue
+            if f.name in owners:
+                raise TypeError(f"{part.__name__} and {owners[f.name]} both have {f.name!r}")
+            owners[f.name] = key
+            default = defaults.get(f.name, default_of(f))
+            metadata = dict(f.metadata) | {"help": field_help(part, f) or ""}
+            specs.append((f.name, f.type, dataclasses.field(default=default, metadata=metadata)))
+
+    def part_of(key: str) -> property:
+        cls = parts[key]
+
+        def build(self):
+            values = {f: getattr(self, f) for f, owner in owners.items() if owner == key}
+            return cls(**values)
+
+        return property(build, doc=f"The {cls.__name__} these flags make.")
+
+    def post_init(self) -> None:
+        for key in parts:
+            getattr(self, key)  # each part checks its own fields
+        extra = getattr(self, "check", None)
+        if extra is not None:
+            extra()
+
+    methods = {key: part_of(key) for key in parts} | (namespace or {})
+    methods |= {"__post_init__": post_init, "__doc__": doc, "parts": dict(parts)}
+    return dataclasses.make_dataclass(name, specs, frozen=True, namespace=methods)
 
 
 def build_parser(cls: type, description: str | None, prog: str | None = None):
     """An ``ArgumentParser`` with one flag per field of the dataclass ``cls``.
 
     Raises:
-        TypeError: naming the field, if a field has no ``metadata["help"]``.
+        TypeError: naming the field, if a field has neither a docstring nor
+            ``metadata["help"]``.
     """
     parser = argparse.ArgumentParser(
         prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     for f in fields(cls):
-        if not f.metadata.get("help"):
-            raise TypeError(f"{cls.__name__}.{f.name} has no metadata['help'] for {flag(f.name)}")
-        default = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
+        text = field_help(cls, f)
+        if not text:
+            raise TypeError(
+                f"{cls.__name__}.{f.name} has no docstring or metadata['help'] for {flag(f.name)}"
+            )
+        default = default_of(f)
         shown = " ".join(map(str, default)) if isinstance(default, tuple) else repr(default)
-        options: dict[str, Any] = {
-            "default": default,
-            "help": f"{f.metadata['help']} (default: {shown})",
-        }
+        options: dict[str, Any] = {"default": default, "help": f"{text} (default: {shown})"}
         if isinstance(default, bool):
             options["action"] = argparse.BooleanOptionalAction
         elif isinstance(default, tuple):

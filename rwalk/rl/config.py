@@ -1,0 +1,184 @@
+"""The training's configs: the run, and rsl-rl's algorithm and models, as dataclasses.
+
+``RunConfig`` says where a training writes and how long it runs; ``TrainConfig``
+holds PPO's settings, the models and what the policy observes, converted to
+rsl-rl's dict at the boundary (``to_rsl_rl``: a fresh dict, since rsl-rl's PPO
+pops keys from the dict it is given). With ``rwalk.presets.TrainingEnv`` they are
+the source of truth of a training: ``rwalk-train``'s flags map one to one onto
+their fields, and ``config.json`` stores them.
+
+``observation_groups`` is the one rule for which pieces the policy and the
+critic read; training, evaluation and export all take it from here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from rwalk.cli import combine, require_at_least, require_in, require_positive
+from rwalk.observations import PRIVILEGED_PIECES
+from rwalk.presets import TrainingEnv
+from rwalk.rl.distributed import DEFAULT_TIMEOUT_S
+from rwalk.tasks.base import Task
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Where a training writes, from what it goes on, and how long it runs."""
+
+    log_dir: str = "logs/rwalk"
+    """output folder of this run"""
+    seed: int = 0
+    """seed of the envs and of torch (under torchrun, rank r seeds its envs with seed + r *
+    (num_envs + its settled-start pool) and torch with seed + r)"""
+    resume: str = ""
+    """continue from this checkpoint file, or from the newest checkpoint that loads in this
+    run folder"""
+    overwrite: bool = False
+    """train in a --log-dir that holds another run's checkpoints: delete its checkpoints (all
+    but the --resume file) and, unless resuming from it, its TensorBoard event files"""
+    max_iterations: int = 300
+    """iterations in total, counting those of --resume"""
+    max_minutes: float = math.inf
+    """stop at a checkpoint after this much wall time"""
+    save_interval: int = 25
+    """save a checkpoint when the iteration is a multiple of this, and at the end"""
+    threads: int = 0
+    """physics and torch threads (0 = all cores; under torchrun or with several collectors,
+    per process: 0 = the machine's cores / its processes)"""
+    export: bool = True
+    """export TorchScript and ONNX at the end"""
+    dist_timeout: float = DEFAULT_TIMEOUT_S
+    """under torchrun: seconds a rank waits for the others (in any exchange) before the
+    whole training fails; longer than building the envs or one iteration"""
+
+    def __post_init__(self) -> None:
+        require_at_least(self, 1, "max_iterations", "save_interval")
+        require_at_least(self, 0, "threads", "seed")
+        require_positive(self, "dist_timeout")
+        require_positive(self, "max_minutes", finite=False)
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """rsl-rl's PPO, its actor and critic, and what the policy reads."""
+
+    num_steps_per_env: int = 24
+    """rollout length per iteration"""
+    reward_scale: float = 1e-3
+    """reward multiplier seen by PPO (the env's reward is the spec's, ~300 per step)"""
+    hidden_dims: tuple[int, ...] = (128, 128)
+    """MLP layers of the actor and the critic"""
+    init_noise_std: float = 0.1
+    """initial action std"""
+    learning_rate: float = 1e-3
+    """Adam step (adaptive on KL)"""
+    entropy_coef: float = 0.005
+    """entropy bonus"""
+    num_learning_epochs: int = 5
+    """PPO epochs per iteration"""
+    num_mini_batches: int = 4
+    """minibatches per epoch"""
+    gamma: float = 0.99
+    """discount"""
+    lam: float = 0.95
+    """GAE lambda"""
+    clip_param: float = 0.2
+    """PPO ratio clip"""
+    desired_kl: float = 0.01
+    """target KL of the adaptive learning rate"""
+    max_grad_norm: float = 1.0
+    """gradient clip"""
+    policy_obs: tuple[str, ...] = field(default=(), metadata={"item": str})
+    """observation pieces the policy sees (none: the observation, phase, lateral_offset and
+    the task's command)"""
+
+    def __post_init__(self) -> None:
+        require_at_least(self, 1, "num_steps_per_env", "num_learning_epochs", "num_mini_batches")
+        require_positive(self, "reward_scale", "learning_rate", "init_noise_std", "clip_param")
+        require_positive(self, "desired_kl", "max_grad_norm")
+        require_at_least(self, 0, "entropy_coef")
+        require_in(self, "gamma", 0.0, 1.0, low_open=True)
+        require_in(self, "lam", 0.0, 1.0)
+        if not self.hidden_dims or min(self.hidden_dims) < 1:
+            raise ValueError(f"--hidden-dims must be sizes >= 1, got {self.hidden_dims}")
+
+    def to_rsl_rl(self, save_interval: int) -> dict[str, Any]:
+        """rsl-rl-lib 5.x's training config (a fresh dict: its PPO pops keys from it)."""
+        mlp = {"class_name": "MLPModel", "hidden_dims": list(self.hidden_dims), "activation": "elu"}
+        return {
+            "num_steps_per_env": self.num_steps_per_env,
+            "save_interval": save_interval,
+            "obs_groups": {"actor": ["policy"], "critic": ["critic"]},
+            "algorithm": {
+                "class_name": "PPO",
+                "learning_rate": self.learning_rate,
+                "entropy_coef": self.entropy_coef,
+                "num_learning_epochs": self.num_learning_epochs,
+                "num_mini_batches": self.num_mini_batches,
+                "gamma": self.gamma,
+                "lam": self.lam,
+                "schedule": "adaptive",
+                "desired_kl": self.desired_kl,
+                "clip_param": self.clip_param,
+                "value_loss_coef": 1.0,
+                "use_clipped_value_loss": False,
+                "max_grad_norm": self.max_grad_norm,
+            },
+            "actor": {
+                **mlp,
+                "obs_normalization": True,
+                "distribution_cfg": {
+                    "class_name": "GaussianDistribution",
+                    "init_std": self.init_noise_std,
+                },
+            },
+            "critic": {**mlp, "obs_normalization": True},
+        }
+
+
+def observation_groups(
+    task: Task, env: TrainingEnv, policy_obs: tuple[str, ...] = ()
+) -> dict[str, tuple[str, ...]]:
+    """The pieces of the policy and the critic of a training (the one rule).
+
+    The policy reads ``policy_obs``, else the spec observation and the task's extra
+    pieces (a robust run's observation counts the torso's x, y from the episode's
+    start: on the terrain-levels map, where it is would tell its level; the piece
+    ``command`` only when the envs draw commands). The critic reads the policy's
+    pieces, plus the privileged ones (the drawn physics, the ground around the feet)
+    when the training's world varies.
+
+    Args:
+        task: the task of the envs the groups are read from (its ``extras`` decide the
+            default pieces).
+        env: the training's envs.
+    """
+    if not policy_obs:
+        observation = "observation_from_start" if env.robust else "observation"
+        extras = [name for name in task.extras() if name != "command" or env.command_range]
+        policy_obs = (observation, *extras)
+    critic = (*policy_obs, *(PRIVILEGED_PIECES if env.robust else ()))
+    return {"policy": tuple(policy_obs), "critic": critic}
+
+
+def _from_saved(cls, saved: dict):
+    """The flags of a run's config.json (``"args"``): flags this version no longer has
+    are dropped, and a run saved before ``robust`` existed trained without it."""
+    known = {f.name for f in dataclasses.fields(cls)}
+    values = {"robust": False} | {k: v for k, v in saved.items() if k in known}
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
+
+
+#: rwalk-train's flags: one per field of its three configs (``args.run``, ``args.env``,
+#: ``args.train`` rebuild them); config.json stores them under "args".
+TrainArgs = combine(
+    "Args",
+    {"run": RunConfig, "env": TrainingEnv, "train": TrainConfig},
+    doc="A training run: every field is a command-line flag (--num-envs, ...), checked on "
+    "creation by the config it belongs to (RunConfig, TrainingEnv, TrainConfig).",
+    namespace={"from_saved": classmethod(_from_saved)},
+)

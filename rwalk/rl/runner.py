@@ -1,0 +1,88 @@
+"""``SafeRunner``: rsl-rl's ``OnPolicyRunner`` with checkpoints as data and the env's state.
+
+rsl-rl's ``OnPolicyRunner.load`` unpickles with ``weights_only=False``, so a
+crafted ``.pt`` file runs whatever it holds; ``SafeRunner`` reads every
+checkpoint with ``torch.load(weights_only=True)`` first (``rwalk.rl.checkpoints``)
+and writes it atomically. It saves the env's own state beside the policy through
+one hook: an env with ``state_dict()`` / ``load_state_dict(state)`` (the rsl-rl
+adapter's: the terrain curriculum's levels) has it written under ``"env_state"``
+at each save and handed back at each load. Under torchrun it joins a gloo group
+on CPU processes (``rwalk.rl.distributed``).
+"""
+
+from __future__ import annotations
+
+from rsl_rl.runners import OnPolicyRunner
+
+from rwalk.rl import distributed
+from rwalk.rl.checkpoints import TRAINER, check_rsl_rl, load_checkpoint, save_checkpoint
+
+
+class SafeRunner(OnPolicyRunner):
+    """rsl-rl's ``OnPolicyRunner`` whose checkpoints are written atomically and read as data,
+    carry the env's state, and whose data-parallel training runs on CPU processes (gloo)
+    under torchrun.
+
+    Checkpoints carry ``"trainer": "rsl_rl"`` and ``"env_state"`` (rsl-rl's ``alg.load``
+    ignores keys it does not know).
+    """
+
+    def _configure_multi_gpu(self) -> None:
+        """rsl-rl's multi-GPU setup for CPU processes: join a gloo group (torchrun's
+        variables; ``rwalk.rl.distributed``) instead of NCCL on ``cuda:LOCAL_RANK``,
+        and fill ``cfg["multi_gpu"]`` as rsl-rl's PPO reads it. A single process
+        (WORLD_SIZE unset or 1) sets nothing up; a CUDA device keeps rsl-rl's own setup.
+        """
+        if str(self.device).startswith("cuda"):
+            super()._configure_multi_gpu()
+            return
+        group = distributed.Group.from_env()
+        self.gpu_world_size = group.world_size
+        self.gpu_global_rank = group.rank
+        self.gpu_local_rank = group.local_rank
+        self.is_distributed = group.distributed
+        distributed.join(group)  # a no-op if rwalk-train joined it already, with its timeout
+        self.cfg["multi_gpu"] = distributed.multi_gpu_config(group)
+
+    _saved: tuple[str, int] | None = None
+    """(path, iteration) of the last save."""
+
+    def save(self, path: str, infos: dict | None = None) -> None:
+        """Write the algorithm's state, the iteration and the env's state to ``path``
+        atomically.
+
+        rsl-rl's ``learn()`` saves its last iteration twice when that iteration
+        is a multiple of ``cfg["save_interval"]`` (in its loop and after it);
+        the repeated save of the same iteration to the same path is skipped.
+        """
+        if self._saved == (str(path), self.current_learning_iteration):
+            return
+        saved = self.alg.save()
+        saved["iter"] = self.current_learning_iteration
+        saved["infos"] = infos
+        saved["trainer"] = TRAINER
+        state_dict = getattr(self.env, "state_dict", None)
+        if state_dict is not None:
+            saved["env_state"] = state_dict()
+        save_checkpoint(saved, path)
+        self._saved = (str(path), self.current_learning_iteration)
+        self.logger.save_model(path, self.current_learning_iteration)
+
+    def load(
+        self,
+        path: str,
+        load_cfg: dict | None = None,
+        strict: bool = True,
+        map_location: str | None = None,
+        data: bytes | None = None,
+    ) -> dict | None:
+        """Load the state ``path`` holds (``data``: its bytes, read by rank 0)."""
+        loaded = check_rsl_rl(load_checkpoint(path, data), path)
+        if self.alg.load(loaded, load_cfg, strict):
+            self.current_learning_iteration = loaded["iter"]
+        load_state_dict = getattr(self.env, "load_state_dict", None)
+        if load_state_dict is not None and loaded.get("env_state"):
+            why = load_state_dict(loaded["env_state"])
+            if why:
+                print(f"[rwalk] {path}: {why}")
+        return loaded.get("infos")

@@ -1,0 +1,263 @@
+"""A training with rsl-rl's PPO on the batched env: one process, or a torchrun group.
+
+``train(args)`` runs what ``rwalk-train`` asks for (``args``: the flags of
+``rwalk.rl.config.TrainArgs``). Rank 0 checks ``--resume``, takes the run
+folder's lock and claims the folder (``rwalk.rl.checkpoints``); every rank builds
+its own envs, with its own seeds and threads (``rank_args``), and steps them;
+rsl-rl's data-parallel PPO averages the gradients over the gloo group
+(``rwalk.rl.distributed``). ``learn()`` runs in chunks up to each checkpoint, and
+after each chunk rank 0's clock decides for every rank whether the time budget
+is spent. Rank 0 alone writes config.json, TensorBoard, checkpoints and exports.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import importlib.metadata
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+import torch
+
+from rwalk.cli import flag
+from rwalk.envs.torchrl_env import BatchedEnv
+from rwalk.export import export_policy
+from rwalk.progress import Progress
+from rwalk.rl import distributed
+from rwalk.rl.checkpoints import (
+    CheckpointError,
+    RunSetupError,
+    atomic_write_text,
+    check_rsl_rl,
+    claim_log_dir,
+    load_checkpoint,
+    newest_checkpoint,
+    run_lock,
+)
+from rwalk.rl.config import observation_groups
+from rwalk.rl.rsl_rl_env import RslRlVecEnv
+from rwalk.rl.runner import SafeRunner
+
+PER_RANK_FLAGS = ("threads",)
+"""Flags the ranks of one training may set differently: a machine's own resources."""
+SETUP_ERRORS = (CheckpointError, FileNotFoundError, RunSetupError)
+"""Errors of a run that cannot start as asked: rank 0's reach every rank (same message)."""
+
+
+def make_env(args) -> RslRlVecEnv:
+    """The training's envs for rsl-rl, with the policy and critic groups of the one rule
+    (``rwalk.rl.config.observation_groups``)."""
+    vec = BatchedEnv(args.num_envs, args.env.config(args.threads), seed=args.seed, task=args.task)
+    vec.core.settle_progress = Progress("settling starts", "physics steps")
+    groups = observation_groups(vec.core.task, args.env, args.policy_obs)
+    return RslRlVecEnv(
+        vec, policy_obs=groups["policy"], critic_obs=groups["critic"],
+        reward_scale=args.reward_scale,
+    )  # fmt: skip
+
+
+def rsl_rl_config(args) -> dict[str, Any]:
+    """rsl-rl-lib 5.x's training config of ``args`` (a fresh dict)."""
+    return args.train.to_rsl_rl(args.save_interval)
+
+
+def start_as_base_gait(runner) -> None:
+    """Zero the actor's output layer: the untrained policy's mean residual is 0, so
+    training starts from the base gait (random output weights made the robots
+    stumble: white-noise residuals of a few mm at 50 Hz stop the gait)."""
+    last = [m for m in runner.alg.get_policy().mlp.modules() if isinstance(m, torch.nn.Linear)][-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.zero_()
+
+
+def resume_point(args) -> tuple[Path, int] | None:
+    """The checkpoint --resume names (a file, or a folder's newest that loads) and its iteration.
+
+    Raises:
+        FileNotFoundError, CheckpointError: naming the file or folder.
+        RunSetupError: if the checkpoint's iteration leaves nothing to train, or its run
+            trained another kind of world.
+    """
+    if not args.resume:
+        return None
+    if Path(args.resume).is_dir():
+        path, state = newest_checkpoint(args.resume)
+    else:
+        path = Path(args.resume)
+        state = check_rsl_rl(load_checkpoint(path), path)
+    iteration = int(state["iter"])
+    if iteration + 1 >= args.max_iterations:
+        raise RunSetupError(
+            f"--resume {path} holds iteration {iteration}, so --max-iterations "
+            f"{args.max_iterations} leaves nothing to train (iterations count from 0); "
+            f"pass --max-iterations {iteration + 2} or more"
+        )
+    saved = path.parent / "config.json"
+    if saved.is_file():
+        trained = type(args).from_saved(json.loads(saved.read_text())["args"])
+        if trained.robust != args.robust:
+            kind = "--robust" if trained.robust else "--no-robust"
+            raise RunSetupError(
+                f"--resume {path}: its run trained with {kind} (its {saved}), and the robust "
+                f"training's policy and critic read other pieces; pass {kind} to resume it"
+            )
+    return path, iteration
+
+
+def run_settings(args) -> dict[str, Any]:
+    """What every rank of a training must share: its flags (but ``PER_RANK_FLAGS``) and the
+    versions of the libraries that compute (JSON-able; keys are the flags and package names)."""
+    flags = {flag(k): v for k, v in dataclasses.asdict(args).items() if k not in PER_RANK_FLAGS}
+    versions = {
+        "torch": torch.__version__,
+        "rsl-rl-lib": importlib.metadata.version("rsl-rl-lib"),
+        "mujoco": mujoco.__version__,
+        "numpy": np.__version__,
+    }
+    return flags | versions
+
+
+def rank_args(args, group: distributed.Group):
+    """The flags of this rank's envs. One process: ``args``. Rank r of a group: seed
+    ``args.seed + r * (num_envs + pool)``, so that its envs and settled-start pool entries
+    (keyed seed + i, then seed + num_envs + j; ``rwalk.starts``) share no key with another
+    rank's; --threads 0 becomes the machine's cores divided among its ranks."""
+    if not group.distributed:
+        return args
+    stride = args.num_envs + args.env.config().settle_pool
+    threads = args.threads or distributed.default_threads(group)
+    return dataclasses.replace(args, seed=args.seed + group.rank * stride, threads=threads)
+
+
+def train(args) -> Path:
+    """Run the training; returns the last checkpoint's path.
+
+    Under torchrun (WORLD_SIZE > 1) every rank runs this and joins the gloo group
+    first; a single process sets nothing up.
+
+    Raises:
+        FileNotFoundError, CheckpointError, RunSetupError: before anything is
+            trained, naming the file, folder or flags at fault (under torchrun,
+            rank 0's, on every rank).
+        distributed.GroupError: ranks started with different flags or torchrun
+            variables that make no group (naming them).
+        RuntimeError: under torchrun, another rank died or hung past --dist-timeout
+            (``distributed.is_group_failure``).
+    """
+    clock = time.perf_counter()  # the wall-time budget counts from here, env building included
+    group = distributed.Group.from_env()
+    distributed.join(group, args.dist_timeout)
+    try:
+        distributed.check_same_settings(group, run_settings(args))
+        return _train(args, group, clock)
+    finally:
+        distributed.leave()
+
+
+def _claim_run(args, group: distributed.Group, stack: contextlib.ExitStack):
+    """Rank 0 checks --resume, takes the run folder's lock (held until ``stack`` closes) and
+    claims the folder; every rank gets the resume point (rank 0's) or rank 0's error, and
+    the checkpoint's bytes (None for one process: it reads the file itself)."""
+    resume, failure = None, None
+    if group.main:
+        try:
+            resume = resume_point(args)
+            log_dir = Path(args.log_dir)
+            stack.enter_context(run_lock(log_dir))
+            claim_log_dir(log_dir, resume, Path(args.resume).is_dir() if args.resume else False,
+                          args.overwrite)  # fmt: skip
+        except Exception as error:  # the other ranks wait to hear of it
+            failure = error
+    distributed.raise_if_failed(group, failure, SETUP_ERRORS)
+    if not group.distributed:
+        return resume, None
+    shared = distributed.broadcast_json(group, resume and [str(resume[0]), resume[1]])
+    if shared is None:
+        return None, None
+    data = distributed.broadcast_bytes(group, resume[0].read_bytes() if resume else None)
+    return (Path(shared[0]), int(shared[1])), data
+
+
+def _train(args, group: distributed.Group, clock: float) -> Path:
+    say = print if group.main else lambda *_, **__: None  # rank 0 speaks for the group
+    log_dir = Path(args.log_dir)
+    with contextlib.ExitStack() as stack:  # rank 0 holds the lock until the run ends
+        resume, data = _claim_run(args, group, stack)
+        mine = rank_args(args, group)
+        torch.manual_seed(args.seed + group.rank)
+        if mine.threads:  # the process's share of the cores, for learning too
+            torch.set_num_threads(mine.threads)
+        if group.distributed:
+            print(
+                f"[rwalk] rank {group.rank} of {group.world_size} (pid {os.getpid()}): "
+                f"{mine.num_envs} envs seeded from {mine.seed}, {mine.threads} threads",
+                flush=True,
+            )
+        say(f"building {args.num_envs} envs (settling their starts) ...", flush=True)
+        env = make_env(mine)
+        say(f"  ready in {time.perf_counter() - clock:.1f} s", flush=True)
+        runner = SafeRunner(
+            env, rsl_rl_config(args), log_dir=str(log_dir) if group.main else None, device="cpu"
+        )
+        hashes = os.environ.get(distributed.PARAMETER_HASHES_ENV)
+        if hashes:
+            distributed.record_parameter_hashes(runner, hashes, group)
+        if resume is None:
+            start_as_base_gait(runner)  # learn() then broadcasts rank 0's parameters
+        else:  # every rank loads rank 0's file
+            runner.load(str(resume[0]), data=data)
+            if env.core.terrain_map is not None:
+                env.core.reset()  # every env restarts on its level of the resumed curriculum
+            runner.current_learning_iteration += 1  # continue after the saved iteration
+            say(f"resumed from {resume[0]}: next iteration {runner.current_learning_iteration}")
+        if group.main:
+            config = {"args": dataclasses.asdict(args), "env": dataclasses.asdict(env.env.config)}
+            atomic_write_text(log_dir / "config.json", json.dumps(config, indent=2))
+        checkpoint = _learn(args, runner, group, clock)
+        if args.export and group.main:
+            jit_path, onnx_path = export_policy(runner, log_dir / "exported")
+            print(f"[rwalk] exported {jit_path} and {onnx_path} (layout: policy.json)")
+    return checkpoint
+
+
+def _learn(args, runner: SafeRunner, group: distributed.Group, clock: float) -> Path:
+    """``runner.learn`` in chunks up to each checkpoint, until --max-iterations or the
+    time budget; returns the last checkpoint's path."""
+    say = print if group.main else lambda *_, **__: None
+    first = runner.current_learning_iteration
+    budget = args.max_minutes * 60.0
+    learning_since = time.perf_counter()  # per-iteration time excludes building the envs
+    checkpoint = Path(args.log_dir) / f"model_{first}.pt"
+    while runner.current_learning_iteration < args.max_iterations:
+        it = runner.current_learning_iteration
+        # One learn() call up to the next checkpoint: rsl-rl saves the multiples of
+        # save_interval in its loop and the call's last iteration after it.
+        last = min(-(-it // args.save_interval) * args.save_interval, args.max_iterations - 1)
+        runner.learn(num_learning_iterations=last + 1 - it, init_at_random_ep_len=it == first)
+        if runner.logger.writer is not None:  # rank 0's; learn() opens one each call
+            runner.logger.writer.close()
+        checkpoint = Path(args.log_dir) / f"model_{last}.pt"
+        runner.current_learning_iteration = last + 1  # learn() leaves it at its last one
+        now = time.perf_counter()
+        elapsed = now - clock
+        per_iteration = (now - learning_since) / (last + 1 - first)
+        left = args.max_iterations - (last + 1)
+        eta = min(left * per_iteration, max(budget - elapsed, 0.0))
+        say(
+            f"[rwalk] iteration {last + 1}/{args.max_iterations}, "
+            f"{elapsed / 60:.1f} min elapsed, ETA {eta / 60:.1f} min, checkpoint {checkpoint}",
+            flush=True,
+        )
+        # Rank 0's clock decides for every rank: all stop after the same iteration.
+        over = elapsed + per_iteration * min(args.save_interval, left) > budget
+        if distributed.agree(group, over):
+            say(f"[rwalk] stopping: the {args.max_minutes:g}-minute budget is reached")
+            break
+    return checkpoint
