@@ -15,6 +15,7 @@ import argparse
 import ast
 import dataclasses
 import inspect
+import itertools
 import math
 import sys
 import textwrap
@@ -53,7 +54,7 @@ def field_docs(cls: type) -> dict[str, str]:
         if not body or not isinstance(body[0], ast.ClassDef):
             continue
         statements = body[0].body
-        for node, after in zip(statements, statements[1:], strict=False):
+        for node, after in itertools.pairwise(statements):
             doc = getattr(after, "value", None)
             if (
                 isinstance(node, ast.AnnAssign)
