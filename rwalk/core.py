@@ -303,29 +303,13 @@ class Core:
 
     # ------------------------------------------------------------------ extras
     def set_terrain_scale(self, scale: float) -> None:
-        """Scale the heightfield's roughness for all envs (0 flat .. 1 full).
-
-        Takes effect immediately for contacts; new starts are placed on the new ground.
+        """Scale the heightfield's roughness for all envs (0 flat .. 1 full) at once; new
+        starts are placed on the new ground (``World.set_terrain_scale``).
 
         Raises:
-            ValueError: naming the world if its ground is a plane, or the config field
-                (a terrain-levels map, or per-env physics) that rules it out.
+            ValueError: naming the world or the config field that rules it out.
         """
-        if self.terrain_map is not None:
-            raise ValueError(
-                "set_terrain_scale cannot change a terrain-levels map: each env's level "
-                "sets its ground (EnvConfig.terrain_levels)"
-            )
-        if self.config.randomization is not None:
-            raise ValueError(
-                "set_terrain_scale cannot change the ground of a core with per-env physics "
-                "(EnvConfig.randomization): mujoco.batch keeps per-env fields only on one "
-                "model; build the core with the terrain_scale you want instead"
-            )
-        try:
-            self.terrain.set_scale(self.model, scale)
-        except ValueError as error:
-            raise ValueError(f"{self.config.model_path}: {error}") from None
+        self.world.set_terrain_scale(scale, self.config)
         self.sim.set_model(self.model)
         self.starts.set_model(self.model)
 

@@ -42,21 +42,9 @@ import numpy as np
 import torch
 
 from rwalk.constants import ACTION_DIM, OBS_DIM
+from rwalk.observations import piece_catalog
+from rwalk.tasks.residual_walk import ResidualWalk
 
-#: Size of each observation piece of the residual task (the names of ``RslRlVecEnv``'s groups).
-PIECE_SIZES = {
-    "observation": OBS_DIM, "observation_from_start": OBS_DIM, "phase": 2,
-    "lateral_offset": 1, "command": 1,
-}  # fmt: skip
-#: What each piece holds.
-PIECE_CONTENT = {
-    "observation": "the spec's 65-D observation (docs/environment.md)",
-    "phase": "sin(2*pi*phase), cos(2*pi*phase) of the gait phase in [0, 1)",
-    "lateral_offset": "torso y minus its value at the episode's start (m)",
-    "observation_from_start": "the spec observation with the torso's x, y minus their values "
-    "at the episode's start (info['start_position'])",
-    "command": "the episode's target velocity (m/s), with EnvConfig.command_range",
-}
 #: The Gymnasium ``info`` key each scalar piece is read from.
 INFO_KEYS = {"phase": "phase", "lateral_offset": "lateral_offset", "command": "target_velocity"}
 #: The policy group of ``RslRlVecEnv`` and ``rwalk-train`` by default.
@@ -72,10 +60,10 @@ def input_layout(
 
     Args:
         catalog: size and content of each piece a task offers (``task_catalog``);
-            None: the residual task's (``PIECE_SIZES``).
+            None: the residual task's.
     """
     if catalog is None:
-        catalog = {name: (PIECE_SIZES[name], PIECE_CONTENT[name]) for name in PIECE_SIZES}
+        catalog = task_catalog(ResidualWalk)
     unknown = [name for name in pieces if name not in catalog]
     if unknown or not pieces:
         raise ValueError(
@@ -89,23 +77,9 @@ def input_layout(
     return layout
 
 
-def task_catalog(core) -> dict[str, tuple[int, str]]:
-    """Size and content of every piece the task of ``core`` offers."""
-    task = core.task
-    catalog = {
-        "observation": (
-            task.observation_dim,
-            PIECE_CONTENT["observation"]
-            if task.observation == ("sensors",)
-            else f"the task's spec observation: pieces {' + '.join(task.observation)}",
-        )
-    }
-    catalog["observation_from_start"] = (
-        task.observation_dim,
-        PIECE_CONTENT["observation_from_start"],
-    )
-    catalog |= {name: (piece.size, piece.doc) for name, piece in task.pieces().items()}
-    return catalog
+def task_catalog(task) -> dict[str, tuple[int, str]]:
+    """Size and content of every piece a task (class or instance) offers."""
+    return piece_catalog(task.pieces(), task.observation)
 
 
 def policy_input(
@@ -164,7 +138,7 @@ def _policy_and_pieces(runner_or_policy, pieces: Sequence[str] | None):
             f"got {type(runner_or_policy).__name__}"
         )
     env = getattr(runner_or_policy, "env", None)
-    catalog = task_catalog(env.core) if hasattr(env, "core") else None
+    catalog = task_catalog(env.core.task) if hasattr(env, "core") else None
     if pieces is None:
         groups = getattr(env, "groups", None)
         if groups is None:

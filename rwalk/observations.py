@@ -194,6 +194,28 @@ COMMON_PIECES: dict[str, ObsPiece] = {
 }  # fmt: skip
 
 
+def piece_catalog(
+    pieces: Mapping[str, ObsPiece], observation: Sequence[str]
+) -> dict[str, tuple[int, str]]:
+    """Size and content of every piece a task offers: the composites ``observation`` and
+    ``observation_from_start`` (of the pieces ``observation``), then ``pieces``."""
+    size = sum(pieces[name].size for name in observation)
+    spec = (
+        "the spec's 65-D observation (docs/environment.md)"
+        if tuple(observation) == ("sensors",)
+        else f"the task's spec observation: pieces {' + '.join(observation)}"
+    )
+    return {
+        "observation": (size, spec),
+        "observation_from_start": (
+            size,
+            "the spec observation with the torso's x, y minus their values at the episode's "
+            "start (info['start_position'])",
+        ),
+        **{name: (piece.size, piece.doc) for name, piece in pieces.items()},
+    }
+
+
 class Observations:
     """Reads a task's pieces, and the noisy ones a policy sees.
 
@@ -213,16 +235,13 @@ class Observations:
     ) -> None:
         self.pieces = dict(pieces)
         self.observation = tuple(observation)
+        self.catalog = piece_catalog(pieces, observation)
+        """Size and content of every piece a view may ask for."""
         self.sources = sources
         self.noise = noise
         self._generator = torch.Generator()
         self._noise_cache: dict[str, Tensor] = {}
         self._scale_cache: dict[str, Tensor | None] = {}  # per piece: fixed by the config
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        """Every piece a view may ask for."""
-        return (*COMPOSITE, *self.pieces)
 
     def size(self, name: str) -> int:
         """Width of the piece ``name``.
@@ -230,9 +249,9 @@ class Observations:
         Raises:
             ValueError: naming the piece and listing the task's pieces.
         """
-        if name in COMPOSITE:
-            return sum(self.pieces[part].size for part in self.observation)
-        return self._piece(name).size
+        if name not in self.catalog:
+            self._piece(name)  # raises, naming it
+        return self.catalog[name][0]
 
     def read(self, name: str) -> Tensor:
         """The piece ``name`` of every env, exact. Shape: (N, size) float64.
@@ -253,7 +272,7 @@ class Observations:
 
     def _piece(self, name: str) -> ObsPiece:
         if name not in self.pieces:
-            raise ValueError(f"no observation piece {name!r}; choose from {self.names}")
+            raise ValueError(f"no observation piece {name!r}; choose from {tuple(self.catalog)}")
         return self.pieces[name]
 
     # ------------------------------------------------------------ noise

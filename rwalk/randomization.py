@@ -124,7 +124,7 @@ PHYSICS_PARAMS: tuple[PhysicsParam, ...] = (
     PhysicsParam("armature_scale", "armature_scale", (0.8, 1.2), 1.0, 1.0, 0.2, "scale",
                  (Target("dof_armature", _leg_dofs),), minimum=0.0,
                  doc="Factor on the leg joints' armature (rotor inertia)."),
-    PhysicsParam("latency", "latency", (0, 2), 0.0, 1.0, 1.0, "latency", minimum=0,
+    PhysicsParam("latency", "latency", (0, 2), 0, 1.0, 1.0, "latency", minimum=0,
                  doc="Delay of the servo targets, in physics substeps (at most one control "
                      "period)."),
 )  # fmt: skip
@@ -181,7 +181,6 @@ class _RandomizationMethods:
     def nominal(cls, **ranges):
         """The model's own values (nothing randomised), with ``ranges`` overriding fields."""
         base = {name: (_FIRST[name].nominal,) * 2 for name in _RANGES}
-        base["latency"] = (0, 0)
         return cls(**(base | ranges))
 
 

@@ -72,6 +72,29 @@ class World:
         """The 12 leg joints' slice of qpos."""
         check_memory(self.model, config, num_envs, self.decimation)
 
+    def set_terrain_scale(self, scale: float, config: EnvConfig) -> None:
+        """Scale the heightfield's roughness in the model (0 flat .. 1 full).
+
+        Raises:
+            ValueError: naming the world if its ground is a plane, or the config field
+                (a terrain-levels map, or per-env physics) that rules it out.
+        """
+        if self.terrain_map is not None:
+            raise ValueError(
+                "set_terrain_scale cannot change a terrain-levels map: each env's level "
+                "sets its ground (EnvConfig.terrain_levels)"
+            )
+        if config.randomization is not None:
+            raise ValueError(
+                "set_terrain_scale cannot change the ground of a core with per-env physics "
+                "(EnvConfig.randomization): mujoco.batch keeps per-env fields only on one "
+                "model; build the core with the terrain_scale you want instead"
+            )
+        try:
+            self.terrain.set_scale(self.model, scale)
+        except ValueError as error:
+            raise ValueError(f"{config.model_path}: {error}") from None
+
     def base_gait_ctrl(self, substeps: int) -> np.ndarray:
         """Zero-residual servo targets from phase 0. Shape: (substeps, 12) float64."""
         ctrl, _ = self.controller.joint_targets(torch.zeros(1, dtype=torch.long), substeps)

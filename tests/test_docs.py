@@ -34,25 +34,135 @@ def test_spec_example_runs(index, tmp_path, monkeypatch, capsys):
         assert capsys.readouterr().out.strip() == "Expected velocity: 0.125 m/s"
 
 
-def test_architecture_examples_run_as_registered_tasks(monkeypatch):
-    """docs/architecture.md's new term and new task: each one module plus one registry line."""
+def _architecture() -> dict[str, str]:
+    """The worked examples of docs/architecture.md, in order."""
+    names = ("term", "piece", "physics_row", "task")
+    blocks = _blocks("architecture.md")
+    assert len(blocks) == len(names), [block.splitlines()[0] for block in blocks]
+    return dict(zip(names, blocks, strict=True))
+
+
+def _register(monkeypatch, code: str, title: str) -> dict:
+    from rwalk.tasks import TASKS
+
+    namespace: dict = {}
+    exec(compile(code, f"architecture.md {title}", "exec"), namespace)
+    for value in list(namespace.values()):
+        name = getattr(value, "name", None)
+        if isinstance(value, type) and isinstance(name, str) and name not in TASKS:
+            monkeypatch.setitem(TASKS, name, value)
+    return namespace
+
+
+def test_architecture_new_term_reads_new_data_in_every_view(monkeypatch):
+    import numpy as np
+    import torch
+
+    from rwalk import EnvConfig, ResidualWalkEnv, ResidualWalkVecEnv
+    from rwalk.constants import OBS_JOINT_VEL
+
+    _register(monkeypatch, _architecture()["term"], "term")
+    config = EnvConfig(model_path="model/world_flat.xml", settle_steps=5)
+    env = ResidualWalkVecEnv(2, config, seed=0, task="efficient_walk")
+    td = env.rand_step(env.reset())
+    terms = td["next", "reward_terms"]
+    core = env.core
+    torque = torch.tensor(core.sim.actuator_force)
+    power = (torque * core.obs[:, OBS_JOINT_VEL]).abs().sum(-1)
+    torch.testing.assert_close(terms["servo_power"].squeeze(-1), (-0.5 * power).float())
+    assert bool((power > 0).all())
+    total = sum(terms[name] for name in terms.keys())  # noqa: SIM118 (TensorDict)
+    torch.testing.assert_close(total, td["next", "reward"])
+    assert "sum/servo_power" in core.episode_log(torch.tensor([0]))
+    # The Gymnasium view's float pipeline takes the term as a float of its one env.
+
+    class EfficientWalkEnv(ResidualWalkEnv):
+        task = "efficient_walk"
+
+    view = EfficientWalkEnv(config=config, seed=0)
+    view.reset()
+    _, reward, _, _, info = view.step(np.zeros(12, dtype=np.float32))
+    assert view.single_step is not None
+    assert isinstance(info["reward_components"]["servo_power"], float)
+    assert reward == sum(info["reward_components"].values(), 0.0)
+
+
+def test_architecture_new_piece_with_noise_is_one_declaration(monkeypatch):
+    import torch
+
+    from rwalk import EnvConfig, ObservationNoise, ResidualWalkVecEnv
+    from rwalk.wrappers import RslRlVecEnv
+
+    _register(monkeypatch, _architecture()["piece"], "piece")
+    config = EnvConfig(model_path="model/world_flat.xml", settle_steps=5,
+                       observation_noise=ObservationNoise())  # fmt: skip
+    env = ResidualWalkVecEnv(3, config, seed=0, task="height_aware_walk")
+    groups = ("observation", "torso_height")
+    obs = RslRlVecEnv(env, policy_obs=groups, critic_obs=groups).get_observations()
+    assert env.core.piece_size("torso_height") == 1
+    height = env.core.piece("torso_height")
+    torch.testing.assert_close(height[:, 0], env.core.obs[:, 2])  # flat ground at z = 0
+    noise = obs["policy"][:, 65] - obs["critic"][:, 65]
+    assert bool((noise.abs() <= 0.005 + 1e-6).all()) and bool((noise != 0).any())
+    assert torch.equal(obs["critic"][:, 65], height[:, 0].float())
+
+
+def test_architecture_new_physics_parameter_is_one_table_row(tmp_path):
+    """The row, added to a copy of the package, makes a field, a draw, a model write and a
+    column of the physics piece, and passes the table's own test."""
+    import shutil
+    import subprocess
+    import sys
+
+    row = _architecture()["physics_row"]
+    shutil.copytree(ROOT / "rwalk", tmp_path / "rwalk", symlinks=True)
+    shutil.copytree(ROOT / "model", tmp_path / "model")
+    module = tmp_path / "rwalk" / "randomization.py"
+    source = module.read_text()
+    end = source.index(")  # fmt: skip", source.index("PHYSICS_PARAMS: tuple"))
+    module.write_text(source[:end] + row + source[end:])
+    check = """
+import numpy as np
+from rwalk import EnvConfig
+from rwalk.core import Core
+from rwalk.randomization import PHYSICS_PARAMS, Randomization
+assert Randomization().torso_inertia == (0.8, 1.2)
+assert Randomization.nominal().torso_inertia == (1.0, 1.0)
+core = Core(EnvConfig(model_path="model/world_flat.xml", settle_steps=2,
+                      randomization=Randomization()), 2, seed=0)
+core.reset()
+column = [p.name for p in PHYSICS_PARAMS].index("torso_inertia")
+torso = core.model.body("torso").id
+for i in range(2):
+    value = float(core.physics.params[i, column])
+    assert 0.8 <= value <= 1.2
+    written = core.sim.batch.get_model(i).body_inertia[torso]
+    assert np.array_equal(written, core.model.body_inertia[torso] * value)
+assert core.piece("physics").shape == (2, 10)
+print("ok")
+"""
+    env = {**__import__("os").environ, "PYTHONPATH": str(tmp_path)}
+    done = subprocess.run([sys.executable, "-c", check], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
+    assert done.stdout.strip() == "ok", done.stderr[-2000:]
+    table = subprocess.run(
+        [sys.executable, "-m", "pytest", "-v", "-p", "no:cacheprovider", "-o", "addopts=",
+         str(ROOT / "tests" / "test_randomization.py"), "-k", "physics_table"],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert "fields[torso_inertia] PASSED" in table.stdout, table.stdout[-2000:]
+    assert table.returncode == 0, table.stdout[-2000:]
+
+
+def test_architecture_new_task_is_one_module_and_one_line(monkeypatch):
     import torch
 
     from rwalk import EnvConfig, ResidualWalkVecEnv
-    from rwalk.tasks import TASKS
 
-    heading, stand = _blocks("architecture.md")
-    namespace: dict = {}
-    exec(compile(heading, "architecture.md heading", "exec"), namespace)
-    exec(compile(stand, "architecture.md stand", "exec"), namespace)
-    monkeypatch.setitem(TASKS, "heading_walk", namespace["HeadingWalk"])
-    monkeypatch.setitem(TASKS, "stand", namespace["Stand"])
+    _register(monkeypatch, _architecture()["task"], "task")
     config = EnvConfig(model_path="model/world_flat.xml", settle_steps=5)
-    env = ResidualWalkVecEnv(2, config, seed=0, task="heading_walk")
-    td = env.rand_step(env.reset())
-    assert "heading" in td["next", "reward_terms"]
-    stand_env = ResidualWalkVecEnv(2, config, seed=0, task="stand")
-    td = stand_env.step(stand_env.reset().set("action", torch.zeros(2, 12)))
+    env = ResidualWalkVecEnv(2, config, seed=0, task="stand")
+    td = env.step(env.reset().set("action", torch.zeros(2, 12)))
     assert not td["next", "terminated"].any()
 
 

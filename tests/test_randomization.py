@@ -14,7 +14,7 @@ from rwalk.constants import FOOT_GEOMS, GROUND_GEOM, JOINT_NAMES, OBS_CONTACT, T
 from rwalk.core import Core
 from rwalk.observations import ObservationNoise
 from rwalk.perturbations import Pushes
-from rwalk.randomization import NOMINAL_PARAMS, Randomization
+from rwalk.randomization import NOMINAL_PARAMS, PHYSICS_PARAMS, Randomization
 
 FAST = dict(settle_steps=10, model_path="model/world_flat.xml")
 
@@ -85,6 +85,28 @@ def test_drawn_physics_reach_each_simulation():
         # set_const followed the mass: the subtree mass of the world holds the payload
         assert sim.body_subtreemass[0] == pytest.approx(model.body_subtreemass[0] + float(payload))
     assert len({tuple(p.tolist()) for p in c.physics.params}) == 3  # each env its own
+
+
+@pytest.mark.parametrize("row", [p for p in PHYSICS_PARAMS if p.targets], ids=lambda p: p.name)
+def test_each_row_of_the_physics_table_writes_its_model_fields(row):
+    """The table's own test: a drawn value shows in every model field its row targets."""
+    c = core(n=2, seed=1, randomization=Randomization())
+    column = PHYSICS_PARAMS.index(row)
+    model = c.model
+    for i in range(2):
+        value = float(c.physics.params[i, column])
+        low, high = getattr(Randomization(), row.range)
+        assert low <= value <= high and value != row.nominal
+        sim = c.sim.batch.get_model(i)
+        for target in row.targets:
+            index = target.select(model)
+            nominal = np.asarray(getattr(model, target.field))[index]
+            want = {"set": np.full_like(nominal, value), "add": nominal + value,
+                    "scale": nominal * value}[row.op]  # fmt: skip
+            assert np.array_equal(np.asarray(getattr(sim, target.field))[index], want)
+    assert Randomization.nominal() == Randomization(
+        **{p.range: (p.nominal, p.nominal) for p in PHYSICS_PARAMS}
+    )
 
 
 def test_fixed_values_and_a_new_draw_at_each_reset():

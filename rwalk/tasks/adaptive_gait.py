@@ -189,7 +189,8 @@ class AdaptiveGait(Task):
         self.gait_phase = torch.zeros(n, dtype=torch.float64)
         """Continuous gait phase in [0, 1) at the start of the next step. Shape: (N,)."""
 
-    def pieces(self) -> dict[str, ObsPiece]:
+    @classmethod
+    def pieces(cls) -> dict[str, ObsPiece]:
         pieces = super().pieces()
         pieces["gait"] = ObsPiece(
             len(ADAPTED),

@@ -22,7 +22,7 @@ from torch import Tensor
 
 from rwalk import rng
 from rwalk.config import EnvConfig
-from rwalk.observations import COMMON_PIECES, PRIVILEGED_PIECES, ObsPiece
+from rwalk.observations import COMMON_PIECES, PRIVILEGED_PIECES, ObsPiece, piece_catalog
 from rwalk.rewards import RewardTerm, spec_terms
 from rwalk.world import World
 
@@ -65,7 +65,8 @@ class Task:
         self._seed = 0
 
     # ------------------------------------------------------------ declarations
-    def pieces(self) -> dict[str, ObsPiece]:
+    @classmethod
+    def pieces(cls) -> dict[str, ObsPiece]:
         """Every named observation piece of this task (the views choose from these)."""
         return dict(COMMON_PIECES)
 
@@ -89,8 +90,7 @@ class Task:
     @property
     def observation_dim(self) -> int:
         """Width of the spec observation."""
-        pieces = self.pieces()
-        return sum(pieces[name].size for name in self.observation)
+        return piece_catalog(self.pieces(), self.observation)["observation"][0]
 
     # ------------------------------------------------------------ behaviour
     def seed(self, seed: int) -> None:
