@@ -236,3 +236,61 @@ POSITIVE_INT = number_type(int, lambda v: v >= 1, "a positive integer")
 NATURAL_INT = number_type(int, lambda v: v >= 0, "an integer >= 0")
 UNIT_FLOAT = number_type(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
 POSITIVE_FLOAT = number_type(float, lambda v: v > 0.0, "a positive number")
+
+
+#: Most items of a tuple field, and most characters of a string field, read from a file.
+MAX_ITEMS = 64
+MAX_TEXT = 4096
+
+
+def _shown(value: Any) -> str:
+    """``value`` for a message, at most 80 characters (a file's value may be huge)."""
+    text = repr(value) if isinstance(value, (int, float, bool, str)) else type(value).__name__
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _check_json_value(name: str, kind: str, value: Any) -> Any:
+    """``value`` of a field declared ``kind`` ("int", "float", "bool", "str", or a
+    "tuple[X, ...]" of those), as read from JSON, converted; ValueError naming the field."""
+    def scalar(item_kind: str, item: Any) -> Any:
+        if item_kind == "bool" and isinstance(item, bool):
+            return item
+        if item_kind == "int" and isinstance(item, int) and not isinstance(item, bool):
+            return item
+        if item_kind == "float" and isinstance(item, (int, float)) and not isinstance(item, bool):
+            return float(item)
+        if item_kind == "str" and isinstance(item, str) and len(item) <= MAX_TEXT:
+            return item
+        article = "an" if item_kind == "int" else "a"
+        raise ValueError(f"{name} must be {article} {item_kind}, got {_shown(item)}")
+
+    if kind.startswith("tuple["):
+        item_kind = kind[len("tuple[") :].split(",")[0].strip()
+        if not isinstance(value, (list, tuple)) or len(value) > MAX_ITEMS:
+            raise ValueError(f"{name} must be a list of at most {MAX_ITEMS} {item_kind}s, "
+                             f"got {_shown(value)}")  # fmt: skip
+        return tuple(scalar(item_kind, item) for item in value)
+    return scalar(kind, value)
+
+
+def from_fields(cls: type[T], values: Any, retired: tuple[str, ...] = ()) -> T:
+    """An instance of the flat dataclass ``cls`` from a JSON object: each field's value
+    checked against its declared type (then by ``cls``'s own checks), missing fields at
+    their defaults, ``retired`` keys (flags of older versions) dropped.
+
+    Raises:
+        ValueError: naming the first unknown key, a field of the wrong type, or the
+            field a check refused (values shown at most 80 characters long).
+    """
+    if not isinstance(values, dict):
+        raise ValueError(f"must be an object of flags, got {_shown(values)}")
+    kinds = {f.name: str(f.type) for f in fields(cls)}
+    unknown = [key for key in values if key not in kinds and key not in retired]
+    if unknown:
+        raise ValueError(f"unknown key {_shown(str(unknown[0]))} (known: {', '.join(kinds)})")
+    checked = {
+        key: _check_json_value(flag(key), kinds[key], value)
+        for key, value in values.items()
+        if key in kinds
+    }
+    return cls(**checked)

@@ -12,8 +12,8 @@ one rule. ``rwalk-play``, ``rwalk-robustness`` and the reports stand on these.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
-import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -24,7 +24,7 @@ import torch
 from rwalk import episodes
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.rl.checkpoints import load_checkpoint
-from rwalk.rl.config import TrainArgs, observation_groups
+from rwalk.rl.config import load_saved_args, observation_groups
 from rwalk.rl.rsl_rl_env import RslRlVecEnv
 
 #: Which command wrote a checkpoint, by its "trainer" key (or its layout, in older files).
@@ -50,14 +50,19 @@ class Evaluation:
     mean_length: float
 
 
-def saved_args(checkpoint: Path) -> dict:
-    """The training flags of ``checkpoint``'s run (its config.json)."""
-    return json.loads((checkpoint.parent / "config.json").read_text())["args"]
-
-
 def saved_run(checkpoint: Path):
-    """The configs of ``checkpoint``'s run (``TrainArgs``: ``.env``, ``.train``, ``.run``)."""
-    return TrainArgs.from_saved(saved_args(checkpoint))
+    """The flags of ``checkpoint``'s run, read as data from its config.json (``TrainArgs``:
+    ``.run``, ``.env``, ``.train`` are its configs).
+
+    Raises:
+        FileNotFoundError, ConfigError: naming the file (``rwalk.rl.config.load_saved_args``).
+    """
+    return load_saved_args(Path(checkpoint).parent / "config.json")
+
+
+def saved_args(checkpoint: Path) -> dict:
+    """The training flags of ``checkpoint``'s run as a dict (``saved_run``)."""
+    return dataclasses.asdict(saved_run(checkpoint))
 
 
 def checkpoint_trainer(saved: dict) -> str:
@@ -77,7 +82,8 @@ def check_checkpoint(checkpoint: Path) -> None:
 
     Raises:
         FileNotFoundError: the checkpoint, or the config.json beside it, is missing.
-        ValueError: the file is not a readable checkpoint, or another trainer wrote it.
+        ValueError: the file is not a readable checkpoint, another trainer wrote it, or
+            its config.json is not a run's (``ConfigError``).
     """
     trainer = checkpoint_trainer(load_checkpoint(checkpoint))
     if trainer != "rsl_rl":
@@ -92,6 +98,7 @@ def check_checkpoint(checkpoint: Path) -> None:
             f"{str(config)!r} not found: play rebuilds the policy of checkpoint "
             f"{str(checkpoint)!r} from the config.json that rwalk-train writes beside it"
         )
+    saved_run(checkpoint)  # ConfigError naming the file and the field
 
 
 def load_policy(checkpoint: Path, env: BatchedEnv) -> Callable[[], torch.Tensor]:

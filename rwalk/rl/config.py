@@ -13,16 +13,30 @@ critic read; training, evaluation and export all take it from here.
 
 from __future__ import annotations
 
-import dataclasses
+import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
-from rwalk.cli import combine, require_at_least, require_in, require_positive
+from rwalk.cli import combine, from_fields, require_at_least, require_in, require_positive
 from rwalk.observations import PRIVILEGED_PIECES
 from rwalk.presets import TrainingEnv
 from rwalk.rl.distributed import DEFAULT_TIMEOUT_S
 from rwalk.tasks.base import Task
+
+#: Most layers, and most units in a layer, of the actor's and the critic's MLPs.
+MAX_LAYERS = 8
+MAX_WIDTH = 4096
+#: Largest config.json read (a run's is a few KB).
+MAX_CONFIG_BYTES = 1 << 20
+#: Flags of older versions that a saved config.json may hold: dropped when it is read.
+RETIRED_FLAGS = ("curriculum_iterations",)
+
+
+class ConfigError(ValueError):
+    """A run's config.json that cannot be read as its flags; the message names the file
+    and the field."""
 
 
 @dataclass(frozen=True)
@@ -105,6 +119,11 @@ class TrainConfig:
         require_in(self, "lam", 0.0, 1.0)
         if not self.hidden_dims or min(self.hidden_dims) < 1:
             raise ValueError(f"--hidden-dims must be sizes >= 1, got {self.hidden_dims}")
+        if len(self.hidden_dims) > MAX_LAYERS or max(self.hidden_dims) > MAX_WIDTH:
+            raise ValueError(
+                f"--hidden-dims must be at most {MAX_LAYERS} layers of at most {MAX_WIDTH} "
+                f"units, got {self.hidden_dims}"
+            )
 
     def to_rsl_rl(self, save_interval: int) -> dict[str, Any]:
         """rsl-rl-lib 5.x's training config (a fresh dict: its PPO pops keys from it)."""
@@ -166,11 +185,45 @@ def observation_groups(
 
 
 def _from_saved(cls, saved: dict):
-    """The flags of a run's config.json (``"args"``): flags this version no longer has
-    are dropped, and a run saved before ``robust`` existed trained without it."""
-    known = {f.name for f in dataclasses.fields(cls)}
-    values = {"robust": False} | {k: v for k, v in saved.items() if k in known}
-    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
+    """The flags of a run's config.json (``"args"``), checked field by field
+    (``rwalk.cli.from_fields``): flags of older versions (``RETIRED_FLAGS``) are dropped,
+    and a run saved before ``robust`` existed trained without it.
+
+    Raises:
+        ValueError: naming an unknown key or a bad field.
+    """
+    return from_fields(cls, {"robust": False} | saved, retired=RETIRED_FLAGS)
+
+
+def load_saved_args(path: Path):
+    """The flags a run stored in its config.json (``path``), as data: the file is read
+    only up to MAX_CONFIG_BYTES, parsed as JSON, and each field checked.
+
+    Raises:
+        FileNotFoundError: naming the file.
+        ConfigError: naming the file and what is wrong (size, JSON, the "args" object,
+            an unknown key or a bad field).
+    """
+    path = Path(path)
+    try:
+        with path.open("rb") as file:
+            data = file.read(MAX_CONFIG_BYTES + 1)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{str(path)!r} not found") from None
+    except OSError as error:
+        raise ConfigError(f"{str(path)!r} cannot be read ({error.strerror})") from None
+    if len(data) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{str(path)!r} is larger than {MAX_CONFIG_BYTES} bytes: not a run's")
+    try:
+        saved = json.loads(data)
+    except (ValueError, RecursionError) as error:
+        raise ConfigError(f"{str(path)!r} is not JSON ({str(error)[:120]})") from None
+    if not isinstance(saved, dict) or not isinstance(saved.get("args"), dict):
+        raise ConfigError(f"{str(path)!r} has no object \"args\" of a run's flags")
+    try:
+        return TrainArgs.from_saved(saved["args"])
+    except (ValueError, TypeError) as error:
+        raise ConfigError(f"{str(path)!r}: args: {error}") from None
 
 
 #: rwalk-train's flags: one per field of its three configs (``args.run``, ``args.env``,

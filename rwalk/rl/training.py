@@ -40,13 +40,13 @@ from rwalk.rl.checkpoints import (
     newest_checkpoint,
     run_lock,
 )
-from rwalk.rl.config import observation_groups
+from rwalk.rl.config import ConfigError, load_saved_args, observation_groups
 from rwalk.rl.rsl_rl_env import RslRlVecEnv
 from rwalk.rl.runner import SafeRunner
 
 PER_RANK_FLAGS = ("threads",)
 """Flags the ranks of one training may set differently: a machine's own resources."""
-SETUP_ERRORS = (CheckpointError, FileNotFoundError, RunSetupError)
+SETUP_ERRORS = (CheckpointError, ConfigError, FileNotFoundError, RunSetupError)
 """Errors of a run that cannot start as asked: rank 0's reach every rank (same message)."""
 
 
@@ -81,7 +81,7 @@ def resume_point(args) -> tuple[Path, int] | None:
     """The checkpoint --resume names (a file, or a folder's newest that loads) and its iteration.
 
     Raises:
-        FileNotFoundError, CheckpointError: naming the file or folder.
+        FileNotFoundError, CheckpointError, ConfigError: naming the file or folder.
         RunSetupError: if the checkpoint's iteration leaves nothing to train, or its run
             trained another kind of world.
     """
@@ -101,7 +101,7 @@ def resume_point(args) -> tuple[Path, int] | None:
         )
     saved = path.parent / "config.json"
     if saved.is_file():
-        trained = type(args).from_saved(json.loads(saved.read_text())["args"])
+        trained = load_saved_args(saved)
         if trained.robust != args.robust:
             kind = "--robust" if trained.robust else "--no-robust"
             raise RunSetupError(

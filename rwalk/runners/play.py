@@ -37,7 +37,7 @@ from rwalk.evaluation import (
     check_checkpoint,
     evaluate,
     load_policy,
-    saved_args,
+    saved_run,
     table,
 )
 from rwalk.progress import Progress
@@ -140,7 +140,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             check_checkpoint(args.checkpoint)
         except (FileNotFoundError, ValueError) as error:
             parser.error(f"--checkpoint: {error}")
-        args.task = saved_args(args.checkpoint).get("task", "residual_walk")
+        args.task = saved_run(args.checkpoint).task
     try:
         presets.get_task(args.task)
     except ValueError as error:
@@ -151,7 +151,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def commanded(args: argparse.Namespace) -> tuple[float, float] | None:
     """The eval env's command range: --command, or the gait's speed for a policy
     trained with commands (it reads one)."""
-    trained = args.checkpoint and saved_args(args.checkpoint).get("command_range")
+    trained = args.checkpoint and saved_run(args.checkpoint).command_range
     if args.command is None and not trained:
         return None
     speed = args.command if args.command is not None else EnvConfig().expected_velocity

@@ -41,7 +41,6 @@ from __future__ import annotations
 
 from rwalk.cli import command, parse_dataclass
 from rwalk.rl import distributed, training
-from rwalk.rl.checkpoints import CheckpointError, RunSetupError
 from rwalk.rl.config import TrainArgs as Args
 
 PROG = command("rwalk.runners.train")
@@ -62,7 +61,7 @@ def main(argv: list[str] | None = None) -> None:
         if group.distributed:
             where = f"rank {group.rank} of {group.world_size}: "
         training.train(args)
-    except (CheckpointError, FileNotFoundError, RunSetupError, distributed.GroupError) as error:
+    except (*training.SETUP_ERRORS, distributed.GroupError) as error:
         raise SystemExit(f"{PROG}: error: {where}{error}") from None
     except RuntimeError as error:
         if not (where and distributed.is_group_failure(error)):
