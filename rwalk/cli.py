@@ -252,6 +252,7 @@ def _shown(value: Any) -> str:
 def _check_json_value(name: str, kind: str, value: Any) -> Any:
     """``value`` of a field declared ``kind`` ("int", "float", "bool", "str", or a
     "tuple[X, ...]" of those), as read from JSON, converted; ValueError naming the field."""
+
     def scalar(item_kind: str, item: Any) -> Any:
         if item_kind == "bool" and isinstance(item, bool):
             return item

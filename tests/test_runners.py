@@ -78,7 +78,7 @@ def test_resume_continues_the_iteration_count(trained, tmp_path):
 def test_exported_policies_act_like_the_checkpoint(trained):
     from rwalk import ResidualWalkVecEnv
     from rwalk.evaluation import load_policy
-    from rwalk.runners.play import eval_config
+    from rwalk.presets import evaluation_config as eval_config
     from rwalk.wrappers import RslRlVecEnv
 
     env = ResidualWalkVecEnv(4, eval_config(settle_steps=3), seed=0)

@@ -219,7 +219,7 @@ def load_saved_args(path: Path):
     except (ValueError, RecursionError) as error:
         raise ConfigError(f"{str(path)!r} is not JSON ({str(error)[:120]})") from None
     if not isinstance(saved, dict) or not isinstance(saved.get("args"), dict):
-        raise ConfigError(f"{str(path)!r} has no object \"args\" of a run's flags")
+        raise ConfigError(f'{str(path)!r} has no object "args" of a run\'s flags')
     try:
         return TrainArgs.from_saved(saved["args"])
     except (ValueError, TypeError) as error:

@@ -49,89 +49,39 @@ def command_name() -> str:
     return command("rwalk.runners.play")
 
 
-def eval_config(
-    terrain_scale: float = 1.0, max_steps: int = 1000, settle_steps: int = 500
-) -> EnvConfig:
-    """The spec's episodes on the rough world, starts spread over the terrain."""
-    return presets.evaluation_config("residual_walk", terrain_scale, max_steps, settle_steps)
-
-
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog=command_name(), description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     add = parser.add_argument
-    add(
-        "--checkpoint",
-        metavar="PATH",
-        type=Path,
-        help="rsl-rl checkpoint model_<it>.pt (default: none)",
-    )
+    # fmt: off
+    add("--checkpoint", metavar="PATH", type=Path,
+        help="rsl-rl checkpoint model_<it>.pt (default: none)")
     add("--base-gait", action="store_true", help="evaluate zero actions (default: off)")
-    add(
-        "--task",
-        default="residual_walk",
-        help="task of a --base-gait run without --checkpoint (default: %(default)s)",
-    )
-    add(
-        "--command",
-        metavar="M/S",
-        type=POSITIVE_FLOAT,
+    add("--task", default="residual_walk",
+        help="task of a --base-gait run without --checkpoint (default: %(default)s)")
+    add("--command", metavar="M/S", type=POSITIVE_FLOAT,
         help="every episode's target velocity, which the reward and the velocity error "
-        "track (default: the gait's step_length / cycle_time)",
-    )
-    add(
-        "--episodes",
-        metavar="N",
-        type=POSITIVE_INT,
-        default=100,
-        help="episodes, one per env (default: %(default)s)",
-    )
-    add(
-        "--seed",
-        metavar="SEED",
-        type=NATURAL_INT,
-        default=1000,
-        help="episode i starts like a single env seeded seed + i (default: %(default)s)",
-    )
-    add(
-        "--terrain-scale",
-        metavar="SCALE",
-        type=UNIT_FLOAT,
-        default=1.0,
-        help="terrain roughness, 0 flat .. 1 full (default: %(default)s)",
-    )
-    add(
-        "--max-steps",
-        metavar="STEPS",
-        type=POSITIVE_INT,
-        default=1000,
-        help="episode length in env steps (default: %(default)s)",
-    )
-    add(
-        "--settle-steps",
-        metavar="STEPS",
-        type=NATURAL_INT,
-        default=500,
-        help="settling at each start (default: %(default)s)",
-    )
-    add(
-        "--video",
-        metavar="PATH",
-        type=Path,
-        help="MP4 or GIF of episode 0, needs OpenGL (default: none)",
-    )
-    add(
-        "--video-seconds",
-        metavar="SECONDS",
-        type=POSITIVE_FLOAT,
-        default=10.0,
-        help="length of the video (default: %(default)s)",
-    )
+        "track (default: the gait's step_length / cycle_time)")
+    add("--episodes", metavar="N", type=POSITIVE_INT, default=100,
+        help="episodes, one per env (default: %(default)s)")
+    add("--seed", metavar="SEED", type=NATURAL_INT, default=1000,
+        help="episode i starts like a single env seeded seed + i (default: %(default)s)")
+    add("--terrain-scale", metavar="SCALE", type=UNIT_FLOAT, default=1.0,
+        help="terrain roughness, 0 flat .. 1 full (default: %(default)s)")
+    add("--max-steps", metavar="STEPS", type=POSITIVE_INT, default=1000,
+        help="episode length in env steps (default: %(default)s)")
+    add("--settle-steps", metavar="STEPS", type=NATURAL_INT, default=500,
+        help="settling at each start (default: %(default)s)")
+    add("--video", metavar="PATH", type=Path,
+        help="MP4 or GIF of episode 0, needs OpenGL (default: none)")
+    add("--video-seconds", metavar="SECONDS", type=POSITIVE_FLOAT, default=10.0,
+        help="length of the video (default: %(default)s)")
     add("--json", metavar="PATH", type=Path, help="save the table's figures here (default: none)")
     add("--progress", action=argparse.BooleanOptionalAction, default=None,
-        help="progress lines on stderr (default: only when stderr is a terminal)")  # fmt: skip
+        help="progress lines on stderr (default: only when stderr is a terminal)")
+    # fmt: on
     args = parser.parse_args(argv)
     if not args.checkpoint and not args.base_gait:
         parser.error("give --checkpoint PATH, --base-gait, or both")
