@@ -171,7 +171,7 @@ class Core:
     def __getstate__(self) -> dict:
         """Config, seed, counters and every part's per-env state, plus each simulation's
         integration state: enough to rebuild the core and continue exactly where it was."""
-        parts = ("episodes", "curriculum", "physics", "pushes", "task")
+        parts = ("episodes", "curriculum", "physics", "pushes", "task", "observations")
         return {
             "config": self.config, "num_envs": self.num_envs, "task": self.task.name,
             "seed": self.seed_value, "started": self._started, "resets": self.resets,

@@ -21,6 +21,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import Any, NamedTuple
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -239,7 +240,9 @@ class Observations:
         """Size and content of every piece a view may ask for."""
         self.sources = sources
         self.noise = noise
-        self._generator = torch.Generator()
+        self.steps = torch.zeros(sources.sensors.shape[0], dtype=torch.long)
+        """Steps each env has taken since the core was seeded (its noise counter). (N,)."""
+        self._seed = 0
         self._noise_cache: dict[str, Tensor] = {}
         self._scale_cache: dict[str, Tensor | None] = {}  # per piece: fixed by the config
 
@@ -277,14 +280,24 @@ class Observations:
 
     # ------------------------------------------------------------ noise
     def seed(self, seed: int) -> None:
-        """Restart the noise (the core was reseeded)."""
-        key = int(rng.keys(seed, NOISE_STREAM, 0))
-        self._generator.manual_seed(key & (2**63 - 1))
+        """Key the noise by ``seed`` and restart every env's step count."""
+        self._seed = seed
+        self.steps.zero_()
         self._noise_cache.clear()
 
     def new_step(self) -> None:
         """A step begins: the next reads draw new noise."""
+        self.steps += 1
         self._noise_cache.clear()
+
+    def _draw(self, name: str, width: int) -> Tensor:
+        """Uniform [0, 1) numbers of piece ``name`` for every env at its current step:
+        env i's from the key (seed + i, "obs_noise/<name>", its step count), so env i of
+        any batch sees the noise of a single env seeded seed + i. Shape: (N, width)."""
+        with np.errstate(over="ignore"):  # seed + i wraps modulo 2^64
+            seeds = np.uint64(self._seed) + np.arange(len(self.steps), dtype=np.uint64)
+        keys = rng.keys(seeds, f"{NOISE_STREAM}/{name}", self.steps.numpy().astype(np.uint64))
+        return torch.from_numpy(rng.uniform(keys, width))
 
     def noisy(self, name: str, value: Tensor | None = None) -> Tensor:
         """The piece ``name`` (``value``: already read) plus this step's noise (the same
@@ -299,10 +312,13 @@ class Observations:
             return value
         noise = self._noise_cache.get(name)
         if noise is None:
-            u = torch.rand(value.shape, dtype=torch.float64, generator=self._generator)
-            noise = (2.0 * u - 1.0) * scales
+            noise = (2.0 * self._draw(name, value.shape[-1]) - 1.0) * scales
             self._noise_cache[name] = noise
         return value + noise
+
+    def state(self) -> dict[str, Tensor]:
+        """Per-env tensors to keep when the core is pickled."""
+        return {"steps": self.steps}
 
     def scales(self, name: str) -> Tensor | None:
         """Noise half-width of each value of the piece ``name`` under the config's

@@ -198,6 +198,22 @@ def test_noise_on_the_policy_group_only():
     assert torch.equal(again["policy"], policy)  # the seed fixes the noise
 
 
+def test_env_i_sees_the_noise_of_a_single_env_seeded_s_plus_i():
+    """Noise keyed per env: env 1 of a batch of 7 seeded 3 and env 0 of a batch of 2 seeded 4
+    (and a single env seeded 4) see the same noisy policy group, step after step."""
+    from rwalk import ResidualWalkVecEnv
+    from rwalk.wrappers import RslRlVecEnv
+
+    cfg = EnvConfig(**FAST, observation_noise=ObservationNoise())
+    envs = [RslRlVecEnv(ResidualWalkVecEnv(n, cfg, seed=s)) for n, s in ((7, 3), (2, 4), (1, 4))]
+    rows = (1, 0, 0)
+    for _ in range(6):
+        policies = [env.get_observations()["policy"][row] for env, row in zip(envs, rows)]
+        assert torch.equal(policies[0], policies[1]) and torch.equal(policies[0], policies[2])
+        for env in envs:
+            env.step(torch.zeros(env.num_envs, 12))
+
+
 def test_physics_piece_is_centred_and_scaled():
     c = core(n=1, randomization=Randomization.nominal(friction=(0.5, 0.5), latency=(2, 2)))
     piece = c.piece("physics")[0]
