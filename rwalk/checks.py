@@ -11,6 +11,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from rwalk.config import MAX_ENVS
 from rwalk.rng import SEED_LIMIT
 
 
@@ -22,6 +23,8 @@ def num_envs(value: object) -> int:
     """
     if not isinstance(value, int) or isinstance(value, bool) or value < 1:
         raise ValueError(f"num_envs must be a positive integer, got {value!r}")
+    if value > MAX_ENVS:
+        raise ValueError(f"num_envs must be at most {MAX_ENVS}, got {value!r}")
     return value
 
 

@@ -190,6 +190,19 @@ def require_at_least(obj: Any, minimum: float, *names: str) -> None:
             raise ValueError(f"{flag(name)} must be >= {minimum}, got {value}")
 
 
+def require_at_most(obj: Any, maximum: float, *names: str) -> None:
+    """Each named field must be <= maximum (after its own lower-bound checks).
+
+    Raises:
+        ValueError: ``--<flag> must be at most <maximum>, got <value>``.
+    """
+    for name in names:
+        value = getattr(obj, name)
+        if value > maximum:
+            shown = maximum if isinstance(maximum, int) else f"{maximum:g}"
+            raise ValueError(f"{flag(name)} must be at most {shown}, got {value}")
+
+
 def require_positive(obj: Any, *names: str, finite: bool = True) -> None:
     """Each named field must be a number > 0 (and finite unless ``finite=False``; NaN fails).
 

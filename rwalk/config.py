@@ -16,6 +16,15 @@ from rwalk.rewards import RewardWeights
 #: Most physics substeps per env step: the controller's targets for a whole control
 #: period are computed at once, so this bounds the memory of one step (and of settling).
 MAX_DECIMATION = 1000
+#: Most env steps of an episode, and of settling (10^6 steps: 5.6 hours at 50 Hz).
+MAX_STEPS = 2**31 - 1
+MAX_SETTLE_STEPS = 1_000_000
+#: Most envs of a core (and entries of a settled-start pool).
+MAX_ENVS = 1 << 24
+#: Most physics threads.
+MAX_THREADS = 1024
+#: Largest commanded speed, either way (the robot walks ~0.1-0.3 m/s). m/s.
+MAX_SPEED = 10.0
 
 
 def _is_number(value: object) -> bool:
@@ -118,18 +127,20 @@ class EnvConfig:
         if not self.residual_scale > 0:
             raise bad("residual_scale", "must be > 0")
         integers = (
-            ("max_episode_steps", 1),
-            ("settle_steps", 0),
-            ("decimation", 1),
-            ("settle_pool", 0),
-            ("settle_reuse", 1),
+            ("max_episode_steps", 1, MAX_STEPS),
+            ("settle_steps", 0, MAX_SETTLE_STEPS),
+            ("decimation", 1, None),
+            ("settle_pool", 0, MAX_ENVS),
+            ("settle_reuse", 1, MAX_STEPS),
         )
-        for name, low in integers:
+        for name, low, high in integers:
             value = getattr(self, name)
             if name == "decimation" and value is None:
                 continue
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise bad(name, f"must be an integer >= {low}")
+            if high is not None and value > high:
+                raise bad(name, f"must be at most {high}")
         if self.decimation is not None and self.decimation > MAX_DECIMATION:
             raise bad(
                 "decimation",
@@ -148,15 +159,18 @@ class EnvConfig:
             raise bad("terrain_scale", "must be 1.0 with terrain_levels (each level sets its own)")
         if min(self.position_noise) < 0 or self.yaw_noise < 0 or self.tilt_noise < 0:
             raise ValueError("EnvConfig noise half-widths must be >= 0")
-        if not isinstance(self.num_threads, int) or self.num_threads < 0:
-            raise bad("num_threads", "must be an integer >= 0")
+        if not isinstance(self.num_threads, int) or not 0 <= self.num_threads <= MAX_THREADS:
+            raise bad("num_threads", f"must be an integer in [0, {MAX_THREADS}]")
         if self.command_range is not None and not (
             isinstance(self.command_range, tuple)
             and len(self.command_range) == 2
-            and all(_is_number(v) and math.isfinite(v) for v in self.command_range)
+            and all(_is_number(v) and abs(v) <= MAX_SPEED for v in self.command_range)
             and self.command_range[0] <= self.command_range[1]
         ):
-            raise bad("command_range", "must be None or (low, high) m/s with low <= high")
+            raise bad(
+                "command_range",
+                f"must be None or (low, high) m/s with low <= high, each within ±{MAX_SPEED:g}",
+            )
 
     def substeps(self, timestep: float) -> int:
         """Physics substeps per env step at a physics ``timestep`` (seconds).

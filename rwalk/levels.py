@@ -35,6 +35,8 @@ from rwalk.assets import resolve_model_path, validate_model
 from rwalk.constants import FLOOR_GEOM, GROUND_GEOM, TERRAIN_HFIELD
 from rwalk.terrain import CORRELATION_LENGTH, generate_heightmap
 
+#: Most height samples of a map (the default map has 441 x 1001).
+MAX_MAP_SAMPLES = 1 << 24
 #: Every kind of tile, in the order that keys their random streams.
 KNOWN_KINDS: tuple[str, ...] = ("rough", "slopes", "steps", "stones")
 
@@ -128,14 +130,32 @@ class TerrainLevels:
                 f"start_level {self.start_level!r} is a terrain level outside the map "
                 f"(levels 0..{self.levels - 1})"
             )
-        if not isinstance(self.curriculum, bool):
-            raise ValueError(f"curriculum must be a bool, got {self.curriculum!r}")
+        for name in ("curriculum", "recycle"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
         for name in ("promote", "demote"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
                 raise ValueError(f"{name} must be a fraction in [0, 1], got {value!r}")
         if self.demote > self.promote:
             raise ValueError(f"demote ({self.demote!r}) must not exceed promote ({self.promote!r})")
+        rows, cols = self.shape
+        if rows * cols > MAX_MAP_SAMPLES:
+            raise ValueError(
+                f"the map would hold {rows} x {cols} height samples (levels {self.levels!r}, "
+                f"{len(self.kinds)} kinds of {self.tile_length!r} x {self.tile_width!r} m tiles, "
+                f"border {self.border!r} m, cell {self.cell!r} m), more than {MAX_MAP_SAMPLES}: "
+                "use fewer levels, smaller tiles or a larger cell"
+            )
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows along y, columns along x) of the map's heightfield."""
+        border = 2 * self.cells(self.border) + 1
+        return (
+            border + self.levels * self.cells(self.tile_width),
+            border + len(self.kinds) * self.cells(self.tile_length),
+        )
 
     def _check_number(self, name: str, positive: bool) -> None:
         value = getattr(self, name)
@@ -266,9 +286,7 @@ def generate(cfg: TerrainLevels) -> TerrainMap:
     """The map of terrain levels for a config: tiles in their bands, a flat border around."""
     tile_rows, tile_cols = cfg.cells(cfg.tile_width), cfg.cells(cfg.tile_length)
     border = cfg.cells(cfg.border)
-    rows = 2 * border + cfg.levels * tile_rows + 1
-    cols = 2 * border + len(cfg.kinds) * tile_cols + 1
-    heights = np.zeros((rows, cols))
+    heights = np.zeros(cfg.shape)
     for level in range(cfg.levels):
         for k, kind in enumerate(cfg.kinds):
             r0, c0 = border + level * tile_rows, border + k * tile_cols

@@ -19,6 +19,8 @@ from rwalk.randomization import check_range
 
 #: Random stream of the kicks (see ``rwalk.rng``).
 PUSH_STREAM = "push"
+#: Env steps until a kick that is never due (a countdown of 2^62 steps: 2.9 billion years).
+NEVER = float(2**62)
 
 
 @dataclass(frozen=True)
@@ -77,7 +79,8 @@ class PushSchedule:
         low, high = self.pushes.interval
         u = rng.uniform_rows(self._seed, rows, PUSH_STREAM, self.draws, 3)
         seconds = low + u[:, 0] * (high - low)
-        steps = torch.ceil(seconds / self.control_dt).to(torch.long).clamp(min=1)
+        # Clamped before the conversion: a huge interval (meant as "never") stays huge.
+        steps = torch.ceil(seconds / self.control_dt).clamp(1.0, NEVER).to(torch.long)
         self.countdown[rows] = steps
         speed = self.pushes.speed[0] + u[:, 1] * (self.pushes.speed[1] - self.pushes.speed[0])
         angle = u[:, 2] * (2.0 * math.pi)

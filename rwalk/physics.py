@@ -25,6 +25,12 @@ INTEGRATORS = {"Euler": mujoco.mjtIntegrator.mjINT_EULER,
 CONDIMS = (1, 3, 4, 6)
 
 
+#: Longest physics timestep a config may ask for. Seconds.
+MAX_TIMESTEP = 0.1
+#: Most solver (and line-search) iterations a config may ask for (MuJoCo's default: 100).
+MAX_ITERATIONS = 10_000
+
+
 @dataclass(frozen=True)
 class Physics:
     """Overrides of the world's physics; None keeps the world file's value."""
@@ -54,21 +60,27 @@ class Physics:
 
         for name, table in (("integrator", INTEGRATORS), ("solver", SOLVERS), ("cone", CONES)):
             value = getattr(self, name)
-            if value is not None and value not in table:
+            if value is not None and not (isinstance(value, str) and value in table):
                 raise bad(name, f"must be one of {sorted(table)}")
-        for name in ("timestep", "tolerance"):
+        for name, high in (("timestep", MAX_TIMESTEP), ("tolerance", 1.0)):
             value = getattr(self, name)
             if value is None:
                 continue
-            low_ok = value > 0 if name == "timestep" else value >= 0
-            if not (_is_number(value) and math.isfinite(value) and low_ok):
-                raise bad(
-                    name, "must be a finite number " + ("> 0" if name == "timestep" else ">= 0")
-                )
+            positive = name == "timestep"
+            if not (
+                _is_number(value)
+                and math.isfinite(value)
+                and (value > 0 if positive else value >= 0)
+            ):
+                raise bad(name, "must be a finite number " + ("> 0" if positive else ">= 0"))
+            if value > high:
+                raise bad(name, f"must be at most {high:g}")
         for name in ("iterations", "ls_iterations"):
             value = getattr(self, name)
             if value is not None and not (_is_int(value) and value >= 1):
                 raise bad(name, "must be an integer >= 1")
+            if value is not None and value > MAX_ITERATIONS:
+                raise bad(name, f"must be at most {MAX_ITERATIONS}")
         if self.foot_condim is not None and self.foot_condim not in CONDIMS:
             raise bad("foot_condim", f"must be one of {CONDIMS}")
         ref = self.foot_solref

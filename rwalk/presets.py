@@ -11,8 +11,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from rwalk.cli import require_at_least, require_in
-from rwalk.config import EnvConfig
+from rwalk.cli import require_at_least, require_at_most, require_in
+from rwalk.config import MAX_ENVS, MAX_SETTLE_STEPS, MAX_SPEED, MAX_STEPS, EnvConfig
 from rwalk.levels import TerrainLevels
 from rwalk.observations import ObservationNoise
 from rwalk.perturbations import Pushes
@@ -155,14 +155,22 @@ class TrainingEnv:
     def __post_init__(self) -> None:
         require_at_least(self, 1, "num_envs", "settle_reuse", "max_episode_steps")
         require_at_least(self, 0, "settle_steps")
+        require_at_most(self, MAX_ENVS, "num_envs")
+        require_at_most(self, MAX_STEPS, "max_episode_steps", "settle_reuse")
+        require_at_most(self, MAX_SETTLE_STEPS, "settle_steps")
         require_in(self, "start_spread", 0.0, 1.0)
         require_in(self, "terrain_scale", 0.0, 1.0)
         require_in(self, "settle_pool_fraction", 0.0, 1.0, low_open=True)
         get_task(self.task)  # ValueError listing the known tasks
         if self.command_range and (
-            len(self.command_range) != 2 or self.command_range[0] > self.command_range[1]
+            len(self.command_range) != 2 or not self.command_range[0] <= self.command_range[1]
         ):
             raise ValueError(f"--command-range must be LOW HIGH, got {self.command_range}")
+        if any(not abs(v) <= MAX_SPEED for v in self.command_range):
+            raise ValueError(
+                f"--command-range must be speeds within ±{MAX_SPEED:g} m/s, got "
+                f"{self.command_range}"
+            )
 
     @property
     def commands(self) -> tuple[float, float] | None:

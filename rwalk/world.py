@@ -106,12 +106,14 @@ def check_memory(model, config: EnvConfig, num_envs: int, decimation: int) -> No
 
     A conservative estimate per env: its integration state and sensor rows (in the
     batch, and in the pool), the torch buffers, and ~20 temporaries of each control
-    period's (K, 4, 3) targets in the step (measured: ~9 KB per env at K = 10).
+    period's (K, 4, 3) targets in the step (measured: ~9 KB per env at K = 10); plus the
+    servo targets of settling, held once.
     """
     nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_INTEGRATION.value)
     row = 8 * (nstate + model.nsensordata + 4 * OBS_DIM)
     per_env = row + 8 * 20 * decimation * 12
-    needed = num_envs * per_env + config.settle_pool * row
+    settling = 8 * 12 * config.settle_steps * decimation
+    needed = num_envs * per_env + config.settle_pool * row + settling
     available = available_memory()
     if available is not None and needed > available:
         raise MemoryError(

@@ -19,12 +19,24 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from rwalk.cli import combine, from_fields, require_at_least, require_in, require_positive
-from rwalk.observations import PRIVILEGED_PIECES
+from rwalk.cli import (
+    combine,
+    from_fields,
+    require_at_least,
+    require_at_most,
+    require_in,
+    require_positive,
+)
+from rwalk.config import MAX_THREADS
+from rwalk.observations import PRIVILEGED_PIECES, piece_catalog
 from rwalk.presets import TrainingEnv
 from rwalk.rl.distributed import DEFAULT_TIMEOUT_S
+from rwalk.rng import SEED_LIMIT
 from rwalk.tasks.base import Task
+from rwalk.tasks.registry import get_task
 
+#: Most iterations of a run, and most of the counts per iteration.
+MAX_ITERATIONS = 10**9
 #: Most layers, and most units in a layer, of the actor's and the critic's MLPs.
 MAX_LAYERS = 8
 MAX_WIDTH = 4096
@@ -72,8 +84,13 @@ class RunConfig:
     def __post_init__(self) -> None:
         require_at_least(self, 1, "max_iterations", "save_interval")
         require_at_least(self, 0, "threads", "seed")
+        require_at_most(self, SEED_LIMIT - 1, "seed")
+        require_at_most(self, MAX_ITERATIONS, "max_iterations", "save_interval")
+        require_at_most(self, MAX_THREADS, "threads")
         require_positive(self, "dist_timeout")
         require_positive(self, "max_minutes", finite=False)
+        if not self.log_dir.strip():
+            raise ValueError("--log-dir must name a folder, got ''")
 
 
 @dataclass(frozen=True)
@@ -112,6 +129,8 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         require_at_least(self, 1, "num_steps_per_env", "num_learning_epochs", "num_mini_batches")
+        require_at_most(self, MAX_ITERATIONS, "num_steps_per_env", "num_learning_epochs",
+                        "num_mini_batches")  # fmt: skip
         require_positive(self, "reward_scale", "learning_rate", "init_noise_std", "clip_param")
         require_positive(self, "desired_kl", "max_grad_norm")
         require_at_least(self, 0, "entropy_coef")
@@ -226,6 +245,24 @@ def load_saved_args(path: Path):
         raise ConfigError(f"{str(path)!r}: args: {error}") from None
 
 
+def _check_across(args) -> None:
+    """Checks that need fields of several configs: the minibatches fit the rollout, the
+    policy's pieces are the task's, and the seeds of every env stay below 2^64."""
+    frames = args.num_envs * args.num_steps_per_env
+    if args.num_mini_batches > frames:
+        raise ValueError(
+            f"--num-mini-batches must be <= --num-envs * --num-steps-per-env = {frames}, "
+            f"got {args.num_mini_batches}"
+        )
+    task = get_task(args.task)
+    known = piece_catalog(task.pieces(), task.observation)
+    unknown = [name for name in args.policy_obs if name not in known]
+    if unknown:
+        raise ValueError(
+            f"--policy-obs: {args.task} has no piece {unknown[0]!r}; choose from {tuple(known)}"
+        )
+
+
 #: rwalk-train's flags: one per field of its three configs (``args.run``, ``args.env``,
 #: ``args.train`` rebuild them); config.json stores them under "args".
 TrainArgs = combine(
@@ -233,5 +270,5 @@ TrainArgs = combine(
     {"run": RunConfig, "env": TrainingEnv, "train": TrainConfig},
     doc="A training run: every field is a command-line flag (--num-envs, ...), checked on "
     "creation by the config it belongs to (RunConfig, TrainingEnv, TrainConfig).",
-    namespace={"from_saved": classmethod(_from_saved)},
+    namespace={"from_saved": classmethod(_from_saved), "check": _check_across},
 )
