@@ -1,5 +1,43 @@
 """Each mode's measurement, the worker runs that measure a mode, and the worker itself.
 
+- ``MODES_HELP``: what each mode times and how (rwalk-bench's --help prints it).
+- ``measure_*`` and ``MEASURES``: a measure function per worker mode, (n, threads,
+  window) -> {mode: result row}.
+- ``ONLY_MODES`` and ``worker_runs``: the modes --only takes and the worker runs that
+  measure them ((a) comes from (b)'s worker, (e) from one worker per terrain).
+- ``worker``: one mode, its rows printed as JSON lines (``python -m rwalk.bench.modes
+  MODE N THREADS WINDOW``); ``run_worker`` runs it in a fresh process.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import torch
+
+from rwalk.bench import envpool
+from rwalk.bench.meters import (
+    EnvMeter,
+    Floor,
+    against_floor,
+    config_timing,
+    env_stepper,
+    floor_result,
+    interleaved,
+    peak_rss_mb,
+    robot_seconds_per_core_second,
+    spread_episodes,
+    timed,
+    training_defaults,
+)
+
+#: What each mode times and how, for rwalk-bench's --help.
+MODES_HELP = """\
 Modes, all on world_train with the training defaults, the same N, threads and
 control period (``core.control_dt``: ``core.decimation`` physics substeps):
 
@@ -36,39 +74,7 @@ has a floor of its own), so the machine's drift does not land on one side.
 Episodes start spread over their length (like rsl-rl's init_at_random_ep_len), so
 resets happen at their long-run rate inside the timing window; every physics
 substep counts, settling included.
-
-Here: ``MEASURES`` (a measure function per worker mode), ``worker_runs`` (the worker
-runs behind --only's modes), ``worker`` (one mode, its rows printed as JSON lines;
-``python -m rwalk.bench.modes MODE N THREADS WINDOW``) and ``run_worker`` (a worker in
-a fresh process). rwalk-bench's --help shows this docstring from "Modes" to "Here".
 """
-
-from __future__ import annotations
-
-import dataclasses
-import json
-import os
-import subprocess
-import sys
-
-import numpy as np
-import torch
-
-from rwalk.bench import envpool
-from rwalk.bench.meters import (
-    EnvMeter,
-    Floor,
-    against_floor,
-    config_timing,
-    env_stepper,
-    floor_result,
-    interleaved,
-    peak_rss_mb,
-    robot_seconds_per_core_second,
-    spread_episodes,
-    timed,
-    training_defaults,
-)
 
 
 def measure_env(n: int, threads: int, window: float, task: str = "residual_walk") -> dict:

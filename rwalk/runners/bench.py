@@ -26,9 +26,8 @@ import sys
 import time
 from pathlib import Path
 
-from rwalk.bench import modes
 from rwalk.bench.envpool import envpool_missing
-from rwalk.bench.modes import ONLY_MODES, WorkerFailed, run_worker, worker_runs
+from rwalk.bench.modes import MODES_HELP, ONLY_MODES, WorkerFailed, run_worker, worker_runs
 from rwalk.bench.report import LABELS, add_ratios_to_floor, plot, summary, table, worker_line
 from rwalk.rl.checkpoints import atomic_write_text
 
@@ -84,8 +83,7 @@ def plan(quick: bool) -> list[tuple[str, int, int]]:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        # The modes as rwalk.bench.modes documents them follow this command's description.
-        description=__doc__ + "\n" + modes.__doc__.partition("\n\n")[2].partition("\nHere:")[0],
+        description=f"{__doc__}\n{MODES_HELP}",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--quick", action="store_true", help="N in {16, 1024}, 2 s windows")
