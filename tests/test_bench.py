@@ -5,8 +5,9 @@ import sys
 
 import pytest
 
-from rwalk.runners.bench import bench, main, summary, table
-from rwalk.runners.bench_envpool import MISSING, check_memory
+from rwalk.bench.envpool import MISSING, check_memory
+from rwalk.bench.report import summary, table
+from rwalk.runners.bench import bench, main
 
 
 def test_bench_pairs_each_contender_with_its_floor(tmp_path):

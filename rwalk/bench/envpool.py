@@ -16,6 +16,9 @@ Memory: each side's resident memory added by building it and taking its first
 steps (current RSS, /proc/self/statm), per env. EnvPool's Go1 holds 40-50 MB
 per env, so N is capped by the memory this machine has free (see
 ``check_memory``); rwalk's N >= 1024 figures come from mode (b).
+
+Built on ``rwalk.bench.meters`` (rwalk's side is mode (b)'s env and meter);
+``rwalk.bench.modes`` runs it, never the other way round.
 """
 
 from __future__ import annotations
@@ -23,13 +26,17 @@ from __future__ import annotations
 import importlib.util
 import os
 import time
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
-if TYPE_CHECKING:
-    from rwalk.runners.bench import EnvMeter
+from rwalk.bench.meters import (
+    EnvMeter,
+    env_stepper,
+    interleaved,
+    peak_rss_mb,
+    robot_seconds_per_core_second,
+)
 
 #: (rwalk world, EnvPool task) per terrain.
 TERRAINS = {
@@ -102,10 +109,8 @@ class _Contender:
 
 def _rwalk(n: int, threads: int, world: str) -> tuple[_Contender, EnvMeter, float]:
     """rwalk's batched env on ``world``; (contender, its EnvMeter, MB it added)."""
-    from rwalk.runners.bench import EnvMeter, _env_stepper
-
     before = _rss_mb()
-    env, step, _ = _env_stepper(n, threads, torch.Generator().manual_seed(0), world)
+    env, step, _ = env_stepper(n, threads, torch.Generator().manual_seed(0), world)
     contender = _Contender(step)
     contender.step()
     return contender, EnvMeter(env.core), _rss_mb() - before
@@ -142,13 +147,11 @@ def measure(terrain: str, n: int, threads: int, window: float) -> dict:
 
     Returns {"rwalk": row, "envpool": row}; the rwalk row carries the ratio of the
     two robot-seconds per core-second."""
-    from rwalk.runners.bench import _interleaved, _peak_rss_mb, robot_seconds_per_core_second
-
     world, task = TERRAINS[terrain]
     ours, meter, ours_mb = _rwalk(n, threads, world)
     theirs, timing, theirs_mb = _envpool(n, threads, task)
     theirs.cpu = theirs.resets = ours.cpu = 0
-    timed = _interleaved({"rwalk": ours.step, "envpool": theirs.step}, window)
+    timed = interleaved({"rwalk": ours.step, "envpool": theirs.step}, window)
     calls, seconds = timed["envpool"]
     rows = {
         "rwalk": meter.result(*timed["rwalk"]) | {"task": world},
@@ -169,7 +172,7 @@ def measure(terrain: str, n: int, threads: int, window: float) -> dict:
             "cores_busy": contender.cpu / timed[key][1],
             "memory_added_mb": added_mb,
             "memory_per_env_mb": added_mb / n,
-            "peak_rss_mb": _peak_rss_mb(),
+            "peak_rss_mb": peak_rss_mb(),
         }
         rows[key]["robot_seconds_per_core_second"] = robot_seconds_per_core_second(rows[key])
     rows["rwalk"]["ratio_to_envpool"] = (
