@@ -1,5 +1,5 @@
 """rwalk-train-torchrl with several collector workers on TorchRL's backends
-(rwalk.runners.torchrl_collect). Tiny runs: 8 envs per worker, settle 2 steps."""
+(rwalk.rl.torchrl_collect), and its env. Tiny runs: 8 envs per worker, settle 2 steps."""
 
 import contextlib
 import json
@@ -15,9 +15,11 @@ from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.collectors.distributed import DistributedCollector
 
 from rwalk.cli import parse_dataclass
+from rwalk.observations import PRIVILEGED_PIECES
+from rwalk.presets import TrainingEnv
 from rwalk.rl.checkpoints import load_checkpoint
-from rwalk.runners import train_torchrl
-from rwalk.runners.torchrl_collect import (
+from rwalk.rl.config import observation_groups
+from rwalk.rl.torchrl_collect import (
     WorkerDied,
     WorkerEnv,
     available_cores,
@@ -26,7 +28,9 @@ from rwalk.runners.torchrl_collect import (
     make_env,
     worker_threads,
 )
-from rwalk.runners.train_torchrl import Args, make_modules
+from rwalk.rl.torchrl_ppo import make_modules
+from rwalk.runners import train_torchrl
+from rwalk.runners.train_torchrl import Args
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = [
@@ -52,12 +56,23 @@ def _args(**changes) -> Args:
     return Args(**(small | changes))
 
 
+def _env(args: Args, **changes):
+    """The run's env (``changes``: make_env's seed, threads or norms instead of the run's)."""
+    options = {"seed": args.seed, "threads": args.threads} | changes
+    return make_env(args.env, args.train.reward_scale, **options)
+
+
+def _make_collector(args: Args, env, actor):
+    return make_collector(env, actor, args.env, args.train, seed=args.seed,
+                          threads=args.threads, iterations=args.max_iterations)  # fmt: skip
+
+
 @contextmanager
 def _collector(args: Args):
     """(collector, actor) of ``args``, shut down afterwards."""
-    env = make_env(args)
-    actor, _ = make_modules(args, env)
-    collector = make_collector(args, env, actor)
+    env = _env(args)
+    actor, _ = make_modules(args.train, env)
+    collector = _make_collector(args, env, actor)
     try:
         yield collector, actor
     finally:
@@ -75,7 +90,7 @@ def test_two_process_workers_train_two_iterations_and_write_checkpoints(tmp_path
     assert saved["iteration"] == 2 and saved["trainer"] == "torchrl"
     assert saved["obs_norm"]["loc"].shape == saved["obs_norm"]["scale"].shape
     config = json.loads((tmp_path / "config.json").read_text())
-    assert config["collectors"] == 2 and config["backend"] == "process"
+    assert config["args"]["collectors"] == 2 and config["args"]["backend"] == "process"
 
 
 @pytest.mark.slow
@@ -93,6 +108,40 @@ def test_two_ray_workers_train_two_iterations(tmp_path):
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert "[torchrl] iteration 2/2" in done.stdout
     assert load_checkpoint(tmp_path / "torchrl_2.pt")["iteration"] == 2
+
+
+def test_max_minutes_stops_after_the_iteration_that_spends_it(tmp_path, capsys):
+    train_torchrl.main([*TINY, "--max-iterations", "5", "--max-minutes", "1e-9",
+                        "--log-dir", str(tmp_path)])  # fmt: skip
+    out = capsys.readouterr().out
+    assert "[torchrl] iteration 1/5" in out and "iteration 2/5" not in out
+    assert "stopping: the 1e-09-minute budget is reached" in out
+    assert sorted(p.name for p in tmp_path.glob("torchrl_*.pt")) == ["torchrl_1.pt"]
+    assert load_checkpoint(tmp_path / "torchrl_1.pt")["iteration"] == 1
+
+
+# ------------------------------------------------------------------------- the trainer's env
+
+
+def test_the_default_env_is_the_robust_world_with_a_privileged_critic():
+    args = _args(collectors=1)  # small sizes; the world is the default
+    assert Args().robust and args.robust
+    env = _env(args)
+    base = env.base_env
+    assert base.config.terrain_levels is not None and base.config.randomization is not None
+    assert base.config.observation_noise is not None and base.config.pushes is not None
+    assert base.groups == observation_groups(base.core.task, TrainingEnv(), ())
+    policy, critic = base.groups["policy"], base.groups["critic"]
+    assert policy == ("observation_from_start", "phase", "lateral_offset")
+    assert critic == (*policy, *PRIVILEGED_PIECES)
+    widths = {key: env.observation_spec[key].shape[-1] for key in ("policy", "critic")}
+    privileged = sum(base.core.piece_size(name) for name in PRIVILEGED_PIECES)
+    assert widths["critic"] == widths["policy"] + privileged
+    actor, value = make_modules(args.train, env)
+    td = env.reset()
+    assert actor(td.clone())["action"].shape == (8, 12)
+    assert value(td.clone())["state_value"].shape == (8, 1)
+    assert value.in_keys == ["critic"] and widths["critic"] > widths["policy"]
 
 
 # ------------------------------------------------------------------- workers, seeds, weights
@@ -121,22 +170,24 @@ def test_workers_step_their_own_seeds_and_get_each_update(backend, kind):
     assert before.shape == after.shape == (2, 8, 4)  # (workers, envs, steps)
     # Seeds: worker w's envs start like a batch seeded seed + w * num_envs.
     first = before["observation"][:, :, 0]  # (workers, envs, 65)
-    dim = before["policy_obs"].shape[-1]
-    unit = (torch.zeros(dim), torch.ones(dim))  # skips measuring, which steps the env
-    for worker in (0, 1):
-        alone = make_env(args, seed=args.seed + worker * args.num_envs, threads=1, obs_norm=unit)
+    dims = {key: before[key].shape[-1] for key in ("policy", "critic")}
+    unit = {key: (torch.zeros(d), torch.ones(d)) for key, d in dims.items()}  # skips measuring,
+    for worker in (0, 1):  # which steps the env
+        alone = _env(args, seed=args.seed + worker * args.num_envs, threads=1, norms=unit)
         torch.testing.assert_close(first[worker], alone.reset()["observation"])
     assert not torch.isclose(first[0], first[1]).all(dim=-1).any()  # env i of each differs
     # Weights: the second batch was acted by the updated policy.
     assert torch.count_nonzero(before["loc"]) == 0  # the zero-residual start
     with torch.no_grad():
-        expected = actor(after.select("policy_obs").clone())["loc"]
+        expected = actor(after.select("policy").clone())["loc"]
     torch.testing.assert_close(after["loc"], expected)
     assert torch.count_nonzero(after["loc"]) > 0
 
 
 def test_worker_envs_pickle_and_share_the_cores():
-    maker = WorkerEnv(_args(), 1, 1, torch.zeros(3), torch.ones(3))
+    args = _args()
+    unit = {"policy": (torch.zeros(3), torch.ones(3)), "critic": (torch.zeros(5), torch.ones(5))}
+    maker = WorkerEnv(args.env, args.train.reward_scale, args.seed, 1, 1, unit)
     again = pickle.loads(pickle.dumps(maker))
     assert again.seed == 8 and again.threads == 1
     assert worker_threads(2, 0) == max(1, available_cores() // 2)
@@ -168,9 +219,9 @@ def test_bad_collector_flags_are_usage_errors(flags, message, capsys):
 
 def test_a_dead_worker_stops_the_run_before_the_weights_wait_for_it():
     args = _args()
-    env = make_env(args)
-    actor, _ = make_modules(args, env)
-    collector = make_collector(args, env, actor)
+    env = _env(args)
+    actor, _ = make_modules(args.train, env)
+    collector = _make_collector(args, env, actor)
     try:
         next(iter(collector))
         check_workers(collector)  # all alive

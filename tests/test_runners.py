@@ -145,7 +145,8 @@ def test_train_torchrl_runs_two_iterations(tmp_path, task, actions):
     assert saved["actor"]["module.0.module.0.0.weight"].shape[0] == 16
     weights = [v for k, v in saved["actor"].items() if k.endswith("weight")]
     assert weights[-1].shape[0] == 2 * actions  # loc and scale of each action
-    assert json.loads((tmp_path / "config.json").read_text())["max_iterations"] == 2
+    assert json.loads((tmp_path / "config.json").read_text())["args"]["max_iterations"] == 2
+    assert saved["groups"]["critic"][-2:] == ["physics", "heights"]  # the robust world's
 
 
 def test_plot_training_draws_the_curves_with_the_base_gait(trained, tmp_path):

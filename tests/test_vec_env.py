@@ -7,14 +7,16 @@ from tensordict import TensorDict
 from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.envs.utils import check_env_specs
 
-from rwalk import EnvConfig, ResidualWalkVecEnv
+from rwalk import EnvConfig, ObservationNoise, ResidualWalkVecEnv
 from rwalk.constants import (
     OBS_CONTACT,
     OBS_FOOT_POS,
     OBS_JOINT_POS,
     OBS_QUAT,
 )
+from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.kinematics import leg_fk
+from rwalk.randomization import PHYSICS_PARAMS
 from rwalk.rewards import TERM_NAMES
 
 QUICK = dataclasses.replace(EnvConfig(), settle_steps=10, max_episode_steps=40)
@@ -179,3 +181,52 @@ def test_multi_sync_collector_runs_envs_in_worker_processes():
 def test_cpu_only():
     with pytest.raises(ValueError, match="CPU"):
         ResidualWalkVecEnv(2, QUICK, device="cuda")
+
+
+# ------------------------------------------------------------------- observation groups
+
+GROUPS = {"policy": ("observation", "phase"), "critic": ("observation", "phase", "physics")}
+
+
+def test_groups_are_keys_of_their_pieces_beside_the_others():
+    env = ResidualWalkVecEnv(3, QUICK, seed=0, groups=GROUPS)
+    check_env_specs(env)
+    widths = {"policy": 65 + 2, "critic": 65 + 2 + len(PHYSICS_PARAMS)}
+    for td in (env.reset(), env.step(env.reset().set("action", torch.zeros(3, 12)))["next"]):
+        for group, width in widths.items():
+            assert td[group].shape == (3, width) and td[group].dtype == torch.float32
+        assert td["observation"].shape == (3, 65) and td["phase"].shape == (3, 2)
+        # No observation noise in the config: every group is its pieces, exact.
+        pieces = torch.cat([td["observation"], td["phase"]], dim=-1)
+        torch.testing.assert_close(td["policy"], pieces, rtol=0, atol=0)
+        physics = env.core.piece("physics").to(torch.float32)
+        torch.testing.assert_close(td["critic"], torch.cat([pieces, physics], -1), rtol=0, atol=0)
+
+
+def test_only_the_policy_group_carries_the_observation_noise():
+    noisy = dataclasses.replace(QUICK, observation_noise=ObservationNoise())
+    env = ResidualWalkVecEnv(4, noisy, seed=0, groups=GROUPS)
+    td = env.step(env.reset().set("action", torch.zeros(4, 12)))["next"]
+    exact = torch.cat([td["observation"], td["phase"]], dim=-1)  # the plain keys stay exact
+    torch.testing.assert_close(td["observation"], env.core.piece("observation").float())
+    torch.testing.assert_close(td["critic"][:, :67], exact, rtol=0, atol=0)
+    scales = env.core.observations.scales("observation").float()  # (65,) half-widths
+    error = (td["policy"][:, :65] - td["observation"]).abs()
+    assert (error <= scales + 1e-5).all()  # within each value's half-width
+    assert (error[:, scales > 0] > 0).float().mean() > 0.9  # and noisy where it has one
+    torch.testing.assert_close(td["policy"][:, 65:], td["phase"], rtol=0, atol=0)  # phase: exact
+
+
+def test_groups_may_come_from_the_task_and_bad_ones_name_the_fault():
+    def actor(task):
+        return {"actor": ("observation", *task.extras())}
+
+    env = BatchedEnv(2, QUICK, seed=0, groups=actor)
+    assert env.groups == {"actor": ("observation", "phase", "lateral_offset")}
+    assert env.reset()["actor"].shape == (2, 68)
+    with pytest.raises(ValueError, match="no observation piece 'heightz'"):
+        BatchedEnv(2, QUICK, groups={"critic": ("observation", "heightz")})
+    with pytest.raises(ValueError, match="group 'phase' would replace the env's key 'phase'"):
+        BatchedEnv(2, QUICK, groups={"phase": ("observation",)})
+    with pytest.raises(ValueError, match="group 'policy' must be a sequence of piece names"):
+        BatchedEnv(2, QUICK, groups={"policy": "observation"})

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from typing import ClassVar
 
 import torch
@@ -30,6 +31,10 @@ class BatchedEnv(EnvBase):
     - ``reward`` (N, 1), ``done`` / ``terminated`` / ``truncated`` (N, 1) bool.
     - ``("reward_terms", name)`` (N, 1): each weighted reward term; they sum to ``reward``.
     - ``diverged`` (N, 1) bool: the simulation blew up this step (also terminated).
+    - with ``groups``, one key per group (N, D): its pieces concatenated, float32.
+      The group ``policy`` reads them with this step's observation noise (the config's
+      ``observation_noise``; the same noise in every read of a step), every other group
+      exactly. The keys above stay as they are (exact).
 
     Partial resets follow the ``"_reset"`` mask; reset envs are settled in one
     batched rollout. Seeding goes through ``set_seed``: env i of a batch seeded
@@ -42,10 +47,20 @@ class BatchedEnv(EnvBase):
         device: only "cpu" (the simulation runs on the CPU).
         task: a registry name or ``Task`` class; None: the class's ``task``, else the task
             whose config class ``config`` is.
+        groups: observation groups as keys: group name -> its pieces (names of
+            ``rwalk.observations``), or a function of the task giving them (for rules
+            that read the task's extras, as ``rwalk.rl.config.observation_groups``).
+            None: no group keys.
+
+    Raises:
+        ValueError: a group named like another key, without pieces, or with an unknown
+            piece (naming it).
     """
 
     #: The task when none is named (None: the config's).
     task: ClassVar[str | None] = None
+    #: The group read with observation noise (the one a policy acts on); others are exact.
+    NOISY_GROUP: ClassVar[str] = "policy"
 
     def __init__(
         self,
@@ -54,6 +69,9 @@ class BatchedEnv(EnvBase):
         seed: int | None = None,
         device: str | torch.device = "cpu",
         task: str | type[Task] | None = None,
+        groups: Mapping[str, Sequence[str]]
+        | Callable[[Task], Mapping[str, Sequence[str]]]
+        | None = None,
     ) -> None:
         if torch.device(device).type != "cpu":
             raise ValueError(f"{type(self).__name__} runs on the CPU only, got device {device!r}")
@@ -69,14 +87,21 @@ class BatchedEnv(EnvBase):
         core = self.core
         self.extras = core.task.extras()
         """Keys of the task's pieces beside the observation."""
+        self.groups = self._check_groups(groups(core.task) if callable(groups) else groups)
+        """Observation groups: key -> its pieces, in the order they are concatenated."""
         pieces = {
             name: Bounded(-1.0, 1.0, shape=(n, 2), dtype=torch.float32)
             if name == "phase"
             else Unbounded(shape=(n, core.piece_size(name)), dtype=torch.float32)
             for name in ("observation", *self.extras)
         }
+        widths = {
+            group: sum(core.piece_size(name) for name in names)
+            for group, names in self.groups.items()
+        }
         self.observation_spec = Composite(
             **pieces,
+            **{g: Unbounded(shape=(n, w), dtype=torch.float32) for g, w in widths.items()},
             reward_terms=Composite(
                 {t.name: Unbounded(shape=(n, 1), dtype=torch.float32) for t in core.terms},
                 shape=(n,),
@@ -90,6 +115,27 @@ class BatchedEnv(EnvBase):
         self.done_spec = Composite(
             done=flag.clone(), terminated=flag.clone(), truncated=flag.clone(), shape=(n,)
         )
+
+    def _check_groups(
+        self, groups: Mapping[str, Sequence[str]] | None
+    ) -> dict[str, tuple[str, ...]]:
+        taken = ("observation", *self.extras, "reward_terms", "diverged", "action", "reward",
+                 "done", "terminated", "truncated", "_reset")  # fmt: skip
+        checked = {}
+        for group, names in (groups or {}).items():
+            if group in taken:
+                raise ValueError(
+                    f"observation group {group!r} would replace the env's key {group!r}; "
+                    "give it another name"
+                )
+            if isinstance(names, str) or not names:
+                raise ValueError(
+                    f"observation group {group!r} must be a sequence of piece names, got {names!r}"
+                )
+            for name in names:
+                self.core.piece_size(name)  # ValueError naming an unknown piece
+            checked[group] = tuple(names)
+        return checked
 
     @property
     def config(self) -> EnvConfig:
@@ -141,12 +187,21 @@ class BatchedEnv(EnvBase):
         truncated: torch.Tensor,
     ) -> TensorDict:
         core = self.core
+        keys = ("observation", *self.extras)
+        wanted = dict.fromkeys((*keys, *(n for names in self.groups.values() for n in names)))
+        exact = {name: core.piece(name) for name in wanted}  # each piece read once
+        noisy = core.observations.noisy
+        groups = {
+            group: torch.cat(
+                [noisy(n, exact[n]) if group == self.NOISY_GROUP else exact[n] for n in names],
+                dim=-1,
+            ).to(torch.float32)
+            for group, names in self.groups.items()
+        }
         return TensorDict(
             {
-                **{
-                    name: core.piece(name).to(torch.float32)
-                    for name in ("observation", *self.extras)
-                },
+                **{name: exact[name].to(torch.float32) for name in keys},
+                **groups,
                 "reward_terms": {
                     name: term.to(torch.float32).unsqueeze(-1) for name, term in terms.items()
                 },

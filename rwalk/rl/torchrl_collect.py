@@ -1,5 +1,5 @@
-"""Where ``rwalk-train-torchrl`` gets its frames: one in-process ``Collector``, or
-``--collectors K`` workers on one of TorchRL's collector backends.
+"""Where the TorchRL trainer gets its frames: its env, and one in-process ``Collector``
+or ``--collectors K`` workers on one of TorchRL's collector backends.
 
     --collectors 1 (default)            torchrl.collectors.Collector, envs in this process
     --collectors K --backend process    Collector(backend="process") -> MultiSyncCollector:
@@ -11,14 +11,18 @@
     --collectors K --backend ray        Collector(backend="ray") -> RayCollector: K Ray actors
                                         (the ``ray`` extra: pip install -e ".[ray]")
 
-Every worker builds its own batched env from a picklable ``WorkerEnv``: ``--num-envs``
-envs (the count is per worker), env seeds ``seed + worker * num_envs ...`` so that no two
-envs share a start, its own torch seed for the action noise, and its own thread budget
-(physics and torch): ``--threads``, or ``cores // K`` when that is 0. All workers
-normalise observations with the statistics this process measured once, so the policy
-sees one scale and the checkpoint holds it. Collection is synchronous: each iteration
-gathers one rollout of ``--num-steps-per-env`` steps from every worker, stacked into a
-batch of shape (K, num_envs, num_steps_per_env).
+The env (``make_env``) is the training's envs (``rwalk.presets.TrainingEnv``: by
+default the robust world) with the policy's and the critic's observation groups of
+the one rule (``rwalk.rl.config.observation_groups``) as the keys ``policy`` (with
+observation noise) and ``critic`` (exact), each normalised (``ObservationNorm``),
+and the reward scaled. Every worker builds its own env from a picklable
+``WorkerEnv``: ``--num-envs`` envs (the count is per worker), env seeds
+``seed + worker * num_envs ...``, its own torch seed for the action noise, and its
+own thread budget (physics and torch): ``--threads``, or ``cores // K`` when that is
+0. All workers normalise with the statistics this process measured once, so the
+policy sees one scale and the checkpoint holds it. Collection is synchronous: each
+iteration gathers one rollout of ``--num-steps-per-env`` steps from every worker,
+stacked into a batch of shape (K, num_envs, num_steps_per_env).
 """
 
 from __future__ import annotations
@@ -26,20 +30,25 @@ from __future__ import annotations
 import os
 import socket
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import torch
+from torch import Tensor
 from torchrl.collectors import BaseCollector, Collector
-from torchrl.envs import CatTensors, Compose, ObservationNorm, RewardScaling, TransformedEnv
+from torchrl.envs import Compose, ObservationNorm, RewardScaling, TransformedEnv
 
-from rwalk import ResidualWalkVecEnv, presets
+from rwalk.envs.torchrl_env import BatchedEnv
+from rwalk.presets import TrainingEnv
 from rwalk.rl.checkpoints import RunSetupError
+from rwalk.rl.config import observation_groups
+from rwalk.rl.torchrl_config import TorchRLConfig
 
-if TYPE_CHECKING:
-    from rwalk.runners.train_torchrl import Args
+GROUPS = ("policy", "critic")
+"""The env's keys the actor (``policy``) and the critic (``critic``) read."""
+NORM_STEPS = 20
+"""Random-action steps whose observations set the normalisation."""
 
-BACKENDS = ("process", "ray", "distributed")
-"""Values of ``--backend``."""
+Norms = dict[str, tuple[Tensor, Tensor]]
+"""(loc, scale) of each normalised key: ``(x - loc) / scale``. Shapes: (D,), (D,)."""
 
 
 def available_cores() -> int:
@@ -55,49 +64,59 @@ def worker_threads(collectors: int, threads: int) -> int:
     return threads if threads > 0 else max(1, available_cores() // collectors)
 
 
+def measure_norms(env: BatchedEnv, keys: tuple[str, ...] = GROUPS) -> Norms:
+    """Mean and standard deviation of each of ``keys`` over ``NORM_STEPS`` steps of
+    random actions from a reset (one rollout for every key); scales at least float32's
+    eps, as ``ObservationNorm.init_stats`` has them."""
+    rollout = env.rollout(max_steps=NORM_STEPS)  # (N, T)
+    eps = torch.finfo(torch.float32).eps
+    return {
+        key: (rollout[key].mean(dim=(0, 1)), rollout[key].std(dim=(0, 1)).clamp_min(eps))
+        for key in keys
+    }
+
+
 def make_env(
-    args: Args,
+    setup: TrainingEnv,
+    reward_scale: float,
     *,
-    seed: int | None = None,
-    threads: int | None = None,
-    obs_norm: tuple[torch.Tensor, torch.Tensor] | None = None,
+    seed: int,
+    threads: int,
+    norms: Norms | None = None,
 ) -> TransformedEnv:
-    """The training env: ``args.num_envs`` envs with the policy's observation
-    ``policy_obs`` (the env's keys concatenated and normalised) and scaled reward.
+    """The training env: ``setup.num_envs`` envs of ``setup``'s world with the keys
+    ``policy`` and ``critic`` (their observation groups, normalised) and scaled reward.
 
     Args:
-        args: the run (task, num_envs, settle_steps, reward_scale; seed and threads
-            unless given here).
+        setup: the training's envs (task, count, world).
+        reward_scale: PPO sees ``reward * reward_scale``.
         seed: env seed (env i starts like a single env seeded ``seed + i``).
         threads: physics threads (0 = all cores).
-        obs_norm: (loc, scale) of the observation normalisation, each shaped like
-            ``policy_obs`` (obs_dim,); None measures them on 20 steps of this env.
+        norms: (loc, scale) of each of ``GROUPS``, each shaped like its key (D,); None
+            measures them on this env (``measure_norms``).
     """
-    seed = args.seed if seed is None else seed
-    threads = args.threads if threads is None else threads
-    config = presets.training_config(
-        args.task, num_envs=args.num_envs, threads=threads, settle_steps=args.settle_steps
+    base = BatchedEnv(
+        setup.num_envs,
+        setup.config(threads),
+        seed=seed,
+        task=setup.task,
+        groups=lambda task: observation_groups(task, setup),
     )
-    base = ResidualWalkVecEnv(args.num_envs, config, seed=seed, task=args.task)
-    keys = ["observation", *base.extras]  # the spec observation and the task's extra pieces
-    if obs_norm is None:
-        norm = ObservationNorm(in_keys=["policy_obs"], standard_normal=True)
-    else:
-        loc, scale = obs_norm
-        norm = ObservationNorm(
-            loc=loc.clone(), scale=scale.clone(), in_keys=["policy_obs"], standard_normal=True
-        )
-    env = TransformedEnv(
-        base,
-        Compose(
-            CatTensors(keys, "policy_obs", del_keys=False),
-            norm,
-            RewardScaling(loc=0.0, scale=args.reward_scale),
-        ),
-    )
-    if obs_norm is None:
-        env.transform[1].init_stats(num_iter=20, reduce_dim=(0, 1), cat_dim=1)
-    return env
+    norms = measure_norms(base) if norms is None else norms
+    normalise = [
+        ObservationNorm(loc=loc.clone(), scale=scale.clone(), in_keys=[key], standard_normal=True)
+        for key, (loc, scale) in norms.items()
+    ]
+    return TransformedEnv(base, Compose(*normalise, RewardScaling(loc=0.0, scale=reward_scale)))
+
+
+def norm_stats(env: TransformedEnv) -> Norms:
+    """(loc, scale) of each key ``env`` normalises (``make_env``'s), detached."""
+    return {
+        t.in_keys[0]: (t.loc.detach(), t.scale.detach())
+        for t in env.transform
+        if isinstance(t, ObservationNorm)
+    }
 
 
 @dataclass(frozen=True)
@@ -105,27 +124,32 @@ class WorkerEnv:
     """Picklable env constructor of collector worker ``worker``; called in the worker.
 
     Sets the worker's torch threads and seed, then builds ``make_env`` with env seed
-    ``seed + worker * num_envs`` (worker w's envs take seeds w*N .. w*N + N-1 past
+    ``first_seed + worker * num_envs`` (worker w's envs take seeds w*N .. w*N + N-1 past
     ``--seed``) and ``threads`` physics threads.
     """
 
-    args: Args
+    setup: TrainingEnv
+    """The envs each worker steps (``num_envs`` of them)."""
+    reward_scale: float
+    """PPO sees ``reward * reward_scale``."""
+    first_seed: int
+    """The run's seed: worker 0's envs' first."""
     worker: int
+    """This worker's index, 0 .. K-1."""
     threads: int
-    obs_loc: torch.Tensor
-    """Shape: (obs_dim,)."""
-    obs_scale: torch.Tensor
-    """Shape: (obs_dim,)."""
+    """Physics and torch threads of this worker."""
+    norms: Norms
+    """The normalisation this process measured, of each of ``GROUPS``."""
 
     @property
     def seed(self) -> int:
-        return self.args.seed + self.worker * self.args.num_envs
+        return self.first_seed + self.worker * self.setup.num_envs
 
     def __call__(self) -> TransformedEnv:
         torch.set_num_threads(self.threads)
         torch.manual_seed(self.seed)  # the worker's own stream of action noise
         return make_env(
-            self.args, seed=self.seed, threads=self.threads, obs_norm=(self.obs_loc, self.obs_scale)
+            self.setup, self.reward_scale, seed=self.seed, threads=self.threads, norms=self.norms
         )
 
 
@@ -178,37 +202,47 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def make_collector(args: Args, env: TransformedEnv, policy: torch.nn.Module) -> BaseCollector:
-    """The run's collector: ``--max-iterations`` synchronous batches.
+def make_collector(
+    env: TransformedEnv,
+    policy: torch.nn.Module,
+    setup: TrainingEnv,
+    ppo: TorchRLConfig,
+    *,
+    seed: int,
+    threads: int,
+    iterations: int,
+) -> BaseCollector:
+    """The run's collector: ``iterations`` synchronous batches.
 
     With one collector on the process backend, a ``Collector`` steps ``env`` here
     (batches of shape (num_envs, num_steps_per_env)). Otherwise K workers each build
-    their own env (``WorkerEnv``) normalised with ``env``'s statistics; batches have
-    shape (K, num_envs, num_steps_per_env). Send new weights with
-    ``update_policy_weights_()`` after each update.
+    their own env (``WorkerEnv`` of ``setup``, seeds from ``seed``, ``threads`` threads
+    or a share of the cores) normalised with ``env``'s statistics; batches have shape
+    (K, num_envs, num_steps_per_env). Send new weights with ``update_policy_weights_()``
+    after each update.
     """
-    frames = args.num_envs * args.num_steps_per_env  # per worker and batch
-    if args.collectors == 1 and args.backend == "process":
+    frames = setup.num_envs * ppo.num_steps_per_env  # per worker and batch
+    if ppo.collectors == 1 and ppo.backend == "process":
         return Collector(
             env,
             policy,
             frames_per_batch=frames,
-            total_frames=frames * args.max_iterations,
+            total_frames=frames * iterations,
             auto_register_policy_transforms=False,  # the MLP policy keeps no state
         )
-    k = args.collectors
-    threads = worker_threads(k, args.threads)
-    norm = env.transform[1]
-    makers = [WorkerEnv(args, w, threads, norm.loc.detach(), norm.scale.detach()) for w in range(k)]
+    k = ppo.collectors
+    per_worker = worker_threads(k, threads)
+    norms = norm_stats(env)
+    makers = [WorkerEnv(setup, ppo.reward_scale, seed, w, per_worker, norms) for w in range(k)]
     worker_kwargs = {"auto_register_policy_transforms": False}
-    if args.backend == "process":
+    if ppo.backend == "process":
         options = {
             **worker_kwargs,
             "num_threads": torch.get_num_threads(),  # this process learns while workers wait
-            "num_sub_threads": threads,
+            "num_sub_threads": per_worker,
             "cat_results": "stack",
         }
-    elif args.backend == "distributed":
+    elif ppo.backend == "distributed":
         options = {
             "launcher": "mp",  # local processes; Slurm would be "submitit"
             "backend": "gloo",
@@ -216,7 +250,7 @@ def make_collector(args: Args, env: TransformedEnv, policy: torch.nn.Module) -> 
             "collector_kwargs": worker_kwargs,
         }
     else:
-        options = {"collector_kwargs": worker_kwargs, "remote_configs": {"num_cpus": threads}}
+        options = {"collector_kwargs": worker_kwargs, "remote_configs": {"num_cpus": per_worker}}
     # DistributedCollector builds worker 0's env here once (to learn the batch layout):
     # keep this process's torch threads and random stream as they were.
     threads_here = torch.get_num_threads()
@@ -224,11 +258,11 @@ def make_collector(args: Args, env: TransformedEnv, policy: torch.nn.Module) -> 
         collector = Collector(
             makers,
             policy,
-            backend=args.backend,
+            backend=ppo.backend,
             num_collectors=k,
             sync=True,
             frames_per_batch=k * frames,
-            total_frames=k * frames * args.max_iterations,
+            total_frames=k * frames * iterations,
             backend_options=options,
         )
     torch.set_num_threads(threads_here)

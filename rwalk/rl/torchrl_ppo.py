@@ -1,0 +1,230 @@
+"""PPO built from TorchRL's own parts on the batched env: the TorchRL trainer.
+
+``train(run, setup, ppo)`` runs what ``rwalk-train-torchrl`` asks for: a
+collector (``rwalk.rl.torchrl_collect``) steps the training's envs
+(``rwalk.presets.TrainingEnv``, by default the robust world, as ``rwalk-train``'s);
+GAE computes advantages; ClipPPOLoss trains a TanhNormal actor on the key
+``policy`` (the policy's observation group, with observation noise) and a value
+network on ``critic`` (the critic's group: in the robust world with the privileged
+pieces), each normalised, on minibatches from a replay buffer.
+
+Writes to ``run.log_dir`` under its lock (``rwalk.rl.checkpoints.run_lock``):
+config.json (``{"trainer": "torchrl", "args", "env"}``), and checkpoints
+``torchrl_<n>.pt`` (the state after <n> iterations, every ``run.save_interval``, at
+the end and when ``run.max_minutes`` is spent; marked ``"trainer": "torchrl"``),
+atomically. Prints one progress line per iteration (with that iteration's
+frames/s, overall and while collecting).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict.nn import NormalParamExtractor, TensorDictModule
+from torch import nn
+from torchrl.collectors import BaseCollector
+from torchrl.data import LazyTensorStorage, ReplayBuffer
+from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
+from torchrl.envs import ObservationNorm, TransformedEnv
+from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+from rwalk.constants import OBS_LINVEL
+from rwalk.presets import TrainingEnv
+from rwalk.rl.checkpoints import atomic_write_text, run_lock, save_checkpoint
+from rwalk.rl.config import RunConfig
+from rwalk.rl.torchrl_collect import check_workers, make_collector, make_env, require_backend
+from rwalk.rl.torchrl_config import TorchRLConfig
+
+__all__ = ["TRAINER", "make_modules", "train"]
+
+TRAINER = "torchrl"
+"""The ``"trainer"`` of this trainer's checkpoints and config.json."""
+
+
+def make_modules(
+    ppo: TorchRLConfig, env: TransformedEnv
+) -> tuple[ProbabilisticActor, ValueOperator]:
+    """The actor (TanhNormal over the actions, from the key ``policy``) and the value
+    network (from ``critic``), MLPs of ``ppo.hidden_dims``. The actor starts as the base
+    gait: its mean residual is 0, its pre-tanh std ``ppo.init_noise_std``."""
+    policy_dim = env.observation_spec["policy"].shape[-1]
+    critic_dim = env.observation_spec["critic"].shape[-1]
+    act_dim = env.action_spec.shape[-1]
+    cells = list(ppo.hidden_dims)
+    body = MLP(in_features=policy_dim, out_features=2 * act_dim, num_cells=cells)
+    last = body[-1]
+    with torch.no_grad():  # start as the base gait: zero mean residual
+        last.weight.zero_()
+        last.bias.zero_()
+    # softplus biased so that a zero pre-activation gives the initial std
+    extractor = NormalParamExtractor(scale_mapping=f"biased_softplus_{ppo.init_noise_std}")
+    actor = ProbabilisticActor(
+        TensorDictModule(
+            nn.Sequential(body, extractor), in_keys=["policy"], out_keys=["loc", "scale"]
+        ),
+        in_keys=["loc", "scale"],
+        spec=env.action_spec,
+        distribution_class=TanhNormal,
+        distribution_kwargs={"low": -1.0, "high": 1.0},
+        return_log_prob=True,
+    )
+    critic = ValueOperator(
+        MLP(in_features=critic_dim, out_features=1, num_cells=cells), in_keys=["critic"]
+    )
+    return actor, critic
+
+
+def train(
+    run: RunConfig,
+    setup: TrainingEnv,
+    ppo: TorchRLConfig,
+    *,
+    flags: Mapping[str, Any] | None = None,
+) -> Path:
+    """Run the training; returns the last checkpoint's path.
+
+    Args:
+        run: where it writes, seed, threads, iterations, checkpoints, time budget
+            (``resume``, ``overwrite`` and ``export`` are rwalk-train's only).
+        setup: the envs (per worker with several collectors).
+        ppo: the algorithm, models and collectors.
+        flags: what config.json keeps as ``"args"`` (the command line's values);
+            None: the three configs' fields.
+
+    Raises:
+        ValueError: ``run`` asks to resume or overwrite, or a minibatch would be empty.
+        RunSetupError: the run folder is in use, or the backend's extra is missing
+            (before anything is written).
+        WorkerDied: a collector worker exited.
+    """
+    clock = time.perf_counter()  # the time budget counts from here, env building included
+    if run.resume or run.overwrite:
+        raise ValueError(
+            f"the TorchRL trainer cannot resume or overwrite a run yet, got resume="
+            f"{run.resume!r}, overwrite={run.overwrite}"
+        )
+    ppo.check_batch(setup.num_envs)
+    require_backend(ppo.backend)  # before anything is written
+    if flags is None:
+        flags = {**dataclasses.asdict(run), **dataclasses.asdict(setup), **dataclasses.asdict(ppo)}
+    with run_lock(run.log_dir):  # one run writes to a folder at a time
+        return _train(run, setup, ppo, dict(flags), clock)
+
+
+def _train(
+    run: RunConfig, setup: TrainingEnv, ppo: TorchRLConfig, flags: dict, clock: float
+) -> Path:
+    log_dir = Path(run.log_dir)
+    torch.manual_seed(run.seed)
+    # With several collectors this env only gives the specs and the normalisation.
+    env = make_env(setup, ppo.reward_scale, seed=run.seed, threads=run.threads)
+    config = {"trainer": TRAINER, "args": flags, "env": dataclasses.asdict(env.base_env.config)}
+    atomic_write_text(log_dir / "config.json", json.dumps(config, indent=2))
+    actor, critic = make_modules(ppo, env)
+    norms = {t.in_keys[0]: t.state_dict() for t in env.transform if isinstance(t, ObservationNorm)}
+    kept = {  # what every checkpoint holds beside the modules
+        "obs_norm": norms["policy"],  # the actor's input normalisation
+        "critic_norm": norms["critic"],
+        "groups": {key: list(pieces) for key, pieces in env.base_env.groups.items()},
+    }
+    collector = make_collector(
+        env, actor, setup, ppo, seed=run.seed, threads=run.threads, iterations=run.max_iterations
+    )
+    del env  # with several collectors the workers step their own envs
+    try:
+        frames = ppo.frames_per_batch(setup.num_envs)
+        checkpoint = _learn(run, ppo, frames, collector, actor, critic, kept, clock)
+    except BaseException:
+        # Shut the workers down on an error too (they would keep this process alive), but
+        # report the error itself: with a worker lost, shutting down may fail as well.
+        with contextlib.suppress(Exception):
+            collector.shutdown()
+        raise
+    collector.shutdown()
+    return checkpoint
+
+
+def _learn(
+    run: RunConfig,
+    ppo: TorchRLConfig,
+    frames: int,
+    collector: BaseCollector,
+    actor: ProbabilisticActor,
+    critic: ValueOperator,
+    kept: dict[str, Any],
+    clock: float,
+) -> Path:
+    """PPO on the collector's batches of ``frames`` frames, until ``run.max_iterations``
+    or the iteration that spends ``run.max_minutes``; returns the last checkpoint's path."""
+    advantage = GAE(gamma=ppo.gamma, lmbda=ppo.lmbda, value_network=critic, average_gae=True)
+    loss = ClipPPOLoss(
+        actor,
+        critic,
+        clip_epsilon=ppo.clip_epsilon,
+        entropy_coeff=ppo.entropy_coef,
+        critic_coeff=1.0,
+        loss_critic_type="smooth_l1",
+    )
+    optimizer = torch.optim.Adam(loss.parameters(), lr=ppo.learning_rate)
+    buffer = ReplayBuffer(
+        storage=LazyTensorStorage(frames),
+        sampler=SamplerWithoutReplacement(),
+        batch_size=frames // ppo.num_mini_batches,
+    )
+    budget = run.max_minutes * 60.0
+    started = tick = time.perf_counter()
+    checkpoint = Path(run.log_dir) / "torchrl_0.pt"
+    for it, batch in enumerate(collector):  # (num_envs, T) or (collectors, num_envs, T)
+        collected = time.perf_counter()
+        with torch.no_grad():
+            advantage(batch)
+        buffer.extend(batch.reshape(-1))
+        for _ in range(ppo.num_learning_epochs):
+            for _ in range(ppo.num_mini_batches):
+                parts = loss(buffer.sample())
+                total = parts["loss_objective"] + parts["loss_critic"] + parts["loss_entropy"]
+                optimizer.zero_grad()
+                total.backward()
+                nn.utils.clip_grad_norm_(loss.parameters(), 1.0)
+                optimizer.step()
+        check_workers(collector)  # a dead one would never acknowledge the weights
+        collector.update_policy_weights_()  # to the workers, when there are any
+        ended = batch["next", "done"].squeeze(-1)
+        reward = batch["next", "reward"].mean().item() / ppo.reward_scale
+        velocity = batch["next", "observation"][..., OBS_LINVEL.start].mean().item()
+        now = time.perf_counter()
+        out_of_time = now - clock >= budget
+        eta = (now - started) / (it + 1) * (run.max_iterations - it - 1)
+        eta = min(eta, max(budget - (now - clock), 0.0))
+        print(
+            f"[torchrl] iteration {it + 1}/{run.max_iterations}  reward/step {reward:7.2f}  "
+            f"v_x {velocity:+.4f} m/s  episodes ended {int(ended.sum())}  "
+            f"{frames / (now - tick):,.0f} frames/s "
+            f"(collecting {frames / (collected - tick):,.0f})  ETA {eta / 60:.1f} min",
+            flush=True,
+        )
+        done = it + 1 == run.max_iterations or out_of_time
+        if (it + 1) % run.save_interval == 0 or done:
+            checkpoint = Path(run.log_dir) / f"torchrl_{it + 1}.pt"
+            state = {
+                "trainer": TRAINER,
+                "iteration": it + 1,
+                "actor": actor.state_dict(),
+                "critic": critic.state_dict(),
+                "optimizer": optimizer.state_dict(),
+            }
+            save_checkpoint(state | kept, checkpoint)
+        if out_of_time and it + 1 < run.max_iterations:
+            print(f"[torchrl] stopping: the {run.max_minutes:g}-minute budget is reached")
+            break
+        tick = time.perf_counter()  # saving is no part of an iteration's frames/s
+    return checkpoint
