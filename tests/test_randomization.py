@@ -208,7 +208,9 @@ def test_env_i_sees_the_noise_of_a_single_env_seeded_s_plus_i():
     envs = [RslRlVecEnv(ResidualWalkVecEnv(n, cfg, seed=s)) for n, s in ((7, 3), (2, 4), (1, 4))]
     rows = (1, 0, 0)
     for _ in range(6):
-        policies = [env.get_observations()["policy"][row] for env, row in zip(envs, rows)]
+        policies = [
+            env.get_observations()["policy"][row] for env, row in zip(envs, rows, strict=True)
+        ]
         assert torch.equal(policies[0], policies[1]) and torch.equal(policies[0], policies[2])
         for env in envs:
             env.step(torch.zeros(env.num_envs, 12))
