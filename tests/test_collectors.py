@@ -173,7 +173,8 @@ def test_workers_step_their_own_seeds_and_get_each_update(backend, kind):
     dims = {key: before[key].shape[-1] for key in ("policy", "critic")}
     unit = {key: (torch.zeros(d), torch.ones(d)) for key, d in dims.items()}  # skips measuring,
     for worker in (0, 1):  # which steps the env
-        alone = _env(args, seed=args.seed + worker * args.num_envs, threads=1, norms=unit)
+        stride = args.num_envs + args.env.config().settle_pool
+        alone = _env(args, seed=args.seed + worker * stride, threads=1, norms=unit)
         torch.testing.assert_close(first[worker], alone.reset()["observation"])
     assert not torch.isclose(first[0], first[1]).all(dim=-1).any()  # env i of each differs
     # Weights: the second batch was acted by the updated policy.
@@ -189,7 +190,7 @@ def test_worker_envs_pickle_and_share_the_cores():
     unit = {"policy": (torch.zeros(3), torch.ones(3)), "critic": (torch.zeros(5), torch.ones(5))}
     maker = WorkerEnv(args.env, args.train.reward_scale, args.seed, 1, 1, unit)
     again = pickle.loads(pickle.dumps(maker))
-    assert again.seed == 8 and again.threads == 1
+    assert again.seed == 8 + args.env.config().settle_pool and again.threads == 1
     assert worker_threads(2, 0) == max(1, available_cores() // 2)
     assert worker_threads(64 * available_cores(), 0) == 1
     assert worker_threads(2, 3) == 3

@@ -17,7 +17,8 @@ the one rule (``rwalk.rl.config.observation_groups``) as the keys ``policy`` (wi
 observation noise) and ``critic`` (exact), each normalised (``ObservationNorm``),
 and the reward scaled. Every worker builds its own env from a picklable
 ``WorkerEnv``: ``--num-envs`` envs (the count is per worker), env seeds
-``seed + worker * num_envs ...``, its own torch seed for the action noise, and its
+``seed + worker * (num_envs + pool) ...`` (no two workers' envs or settled-start pool
+entries share a key), its own torch seed for the action noise, and its
 own thread budget (physics and torch): ``--threads``, or ``cores // K`` when that is
 0. All workers normalise with the statistics this process measured once, so the
 policy sees one scale and the checkpoint holds it. Collection is synchronous: each
@@ -124,8 +125,9 @@ class WorkerEnv:
     """Picklable env constructor of collector worker ``worker``; called in the worker.
 
     Sets the worker's torch threads and seed, then builds ``make_env`` with env seed
-    ``first_seed + worker * num_envs`` (worker w's envs take seeds w*N .. w*N + N-1 past
-    ``--seed``) and ``threads`` physics threads.
+    ``first_seed + worker * (num_envs + pool)``: worker w's envs and settled-start pool
+    entries (keyed seed + i, then seed + num_envs + j; ``rwalk.starts``) share no key with
+    another worker's, as rwalk-train's ranks. ``threads`` physics threads.
     """
 
     setup: TrainingEnv
@@ -143,7 +145,9 @@ class WorkerEnv:
 
     @property
     def seed(self) -> int:
-        return self.first_seed + self.worker * self.setup.num_envs
+        return self.first_seed + self.worker * (
+            self.setup.num_envs + self.setup.config().settle_pool
+        )
 
     def __call__(self) -> TransformedEnv:
         torch.set_num_threads(self.threads)
