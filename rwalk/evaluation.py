@@ -23,7 +23,7 @@ import torch
 
 from rwalk import episodes
 from rwalk.envs.torchrl_env import BatchedEnv
-from rwalk.rl.checkpoints import load_checkpoint
+from rwalk.rl.checkpoints import load_checkpoint, trainer_of
 from rwalk.rl.config import load_saved_args, observation_groups
 from rwalk.rl.rsl_rl_env import RslRlVecEnv
 
@@ -65,18 +65,6 @@ def saved_args(checkpoint: Path) -> dict:
     return dataclasses.asdict(saved_run(checkpoint))
 
 
-def checkpoint_trainer(saved: dict) -> str:
-    """The trainer that wrote a loaded checkpoint: its ``"trainer"`` key, else
-    ``"torchrl"`` / ``"rsl_rl"`` from its keys, else ``"unknown"``."""
-    if "trainer" in saved:
-        return str(saved["trainer"])
-    if {"iteration", "actor"} <= saved.keys():
-        return "torchrl"
-    if {"iter", "actor_state_dict"} <= saved.keys():
-        return "rsl_rl"
-    return "unknown"
-
-
 def check_checkpoint(checkpoint: Path) -> None:
     """Fail before any work, naming the file, if ``checkpoint`` cannot be evaluated.
 
@@ -85,7 +73,7 @@ def check_checkpoint(checkpoint: Path) -> None:
         ValueError: the file is not a readable checkpoint, another trainer wrote it, or
             its config.json is not a run's (``ConfigError``).
     """
-    trainer = checkpoint_trainer(load_checkpoint(checkpoint))
+    trainer = trainer_of(load_checkpoint(checkpoint))
     if trainer != "rsl_rl":
         writer = TRAINERS.get(trainer, f"an unknown trainer ({trainer!r})")
         raise ValueError(

@@ -12,11 +12,13 @@ lock file ``.rwalk.lock`` holding that process's pid.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import pickle
 import re
 import tempfile
+import zipfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -50,7 +52,7 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[IO[bytes]], None
     under ``path`` (the temporary file is removed on errors).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _make_folder(path.parent)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600; a plain write obeys the umask
@@ -81,46 +83,144 @@ def save_checkpoint(obj: Any, path: str | os.PathLike[str]) -> Path:
     return atomic_write(path, lambda file: torch.save(obj, file))
 
 
+#: Largest checkpoint read: its file, and all its entries unpacked (a run's is ~1 MB).
+MAX_CHECKPOINT_BYTES = 256 << 20
+#: Most entries in a checkpoint's archive, and most keys of its top-level dict.
+MAX_ENTRIES = 10_000
+MAX_KEYS = 64
+#: Longest error text of a library quoted in a message.
+MAX_QUOTE = 200
+
+
+def quote(text: object) -> str:
+    """``str(text)`` cut to MAX_QUOTE characters (for error texts of libraries)."""
+    text = str(text)
+    return text if len(text) <= MAX_QUOTE else text[: MAX_QUOTE - 3] + "..."
+
+
+def _check_archive(source: IO[bytes], name: str) -> None:
+    """Refuse what torch.save never writes, before unpickling anything: a file that is no
+    zip archive, compressed entries, or entries whose unpacked size passes the cap (a
+    few KB can deflate to GBs).
+
+    Raises:
+        CheckpointError: naming the file and what is wrong.
+    """
+    try:
+        with zipfile.ZipFile(source) as archive:
+            entries = archive.infolist()
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as error:
+        raise CheckpointError(
+            f"checkpoint {name} is not a torch checkpoint (no zip archive: {quote(error)})"
+        ) from None
+    if len(entries) > MAX_ENTRIES:
+        raise CheckpointError(f"checkpoint {name} has {len(entries)} entries, more than "
+                              f"{MAX_ENTRIES}")  # fmt: skip
+    if any(entry.compress_type != zipfile.ZIP_STORED for entry in entries):
+        raise CheckpointError(
+            f"checkpoint {name} holds compressed entries, which torch.save never writes"
+        )
+    unpacked = sum(entry.file_size for entry in entries)
+    if unpacked > MAX_CHECKPOINT_BYTES:
+        raise CheckpointError(
+            f"checkpoint {name} unpacks to {unpacked} bytes, more than the limit of "
+            f"{MAX_CHECKPOINT_BYTES} (rwalk.rl.checkpoints.MAX_CHECKPOINT_BYTES)"
+        )
+
+
 def load_checkpoint(path: str | os.PathLike[str], data: bytes | None = None) -> dict[str, Any]:
     """Read a checkpoint as data (``weights_only=True``); ``data``: the file's bytes, read
     elsewhere (by rank 0 of a distributed run), which ``path`` then only names.
 
+    What it accepts is bounded before anything is unpickled (``_check_archive``: a zip
+    archive of stored entries, at most MAX_CHECKPOINT_BYTES unpacked), and nothing
+    read from the file is ever formatted into a message.
+
     Raises:
         FileNotFoundError: naming the path.
-        CheckpointError: naming the path, if the file is truncated, not a
+        CheckpointError: naming the path, if the file is too large, truncated, not a
             checkpoint, or holds anything but tensors and plain values.
     """
     path = Path(path)
+    name = repr(str(path))
     if data is None and not path.is_file():
-        raise FileNotFoundError(f"checkpoint {str(path)!r} not found")
+        raise FileNotFoundError(f"checkpoint {name} not found")
+    size = path.stat().st_size if data is None else len(data)
+    if size > MAX_CHECKPOINT_BYTES:
+        raise CheckpointError(f"checkpoint {name} has {size} bytes, more than the limit of "
+                              f"{MAX_CHECKPOINT_BYTES}")  # fmt: skip
     try:
-        source = path if data is None else io.BytesIO(data)
-        loaded = torch.load(source, map_location="cpu", weights_only=True)
+        with path.open("rb") if data is None else contextlib.nullcontext(io.BytesIO(data)) as f:
+            _check_archive(f, name)
+            f.seek(0)
+            loaded = torch.load(f, map_location="cpu", weights_only=True)
+    except CheckpointError:
+        raise
     except pickle.UnpicklingError as error:
         # torch's message suggests weights_only=False; name only what was refused.
         lines = [line.strip() for line in str(error).splitlines() if "GLOBAL" in line]
         raise CheckpointError(
-            f"checkpoint {str(path)!r} was refused: it holds objects other than tensors and "
-            f"plain values, so loading it could run code ({' '.join(lines) or error})"
+            f"checkpoint {name} was refused: it holds objects other than tensors and plain "
+            f"values, so loading it could run code ({quote(' '.join(lines) or error)})"
+        ) from None
+    except RecursionError:
+        raise CheckpointError(
+            f"checkpoint {name} is nested too deeply to be a checkpoint"
         ) from None
     except Exception as error:  # truncated zip, not a torch file, ...
         raise CheckpointError(
-            f"checkpoint {str(path)!r} cannot be read ({type(error).__name__}: {error})"
+            f"checkpoint {name} cannot be read ({type(error).__name__}: {quote(error)})"
         ) from None
     if not isinstance(loaded, dict):
         raise CheckpointError(
-            f"checkpoint {str(path)!r} holds a {type(loaded).__name__}, not a dict of states"
+            f"checkpoint {name} holds a {type(loaded).__name__}, not a dict of states"
         )
+    if len(loaded) > MAX_KEYS or not all(isinstance(key, str) for key in loaded):
+        raise CheckpointError(f"checkpoint {name} is not a dict of at most {MAX_KEYS} named "
+                              "states")  # fmt: skip
     return loaded
 
 
-def check_rsl_rl(loaded: dict[str, Any], path: str | os.PathLike[str]) -> dict[str, Any]:
-    """``loaded`` (from ``load_checkpoint(path)``) if it is an rsl-rl save from rwalk-train.
+def trainer_of(loaded: dict[str, Any]) -> str:
+    """The trainer that wrote a loaded checkpoint: its ``"trainer"`` key (a short name), else
+    ``"torchrl"`` / ``"rsl_rl"`` from its keys, else ``"unknown"``. Nothing else of the
+    file is looked at, so a crafted value is never expanded."""
+    trainer = loaded.get("trainer")
+    if isinstance(trainer, str) and len(trainer) <= 32 and trainer.isidentifier():
+        return trainer
+    if trainer is not None:
+        return "unknown"
+    if {"iteration", "actor"} <= loaded.keys():
+        return "torchrl"
+    if {"iter", "actor_state_dict"} <= loaded.keys():
+        return "rsl_rl"
+    return "unknown"
+
+
+def checked_iteration(loaded: dict[str, Any], key: str, path: str | os.PathLike[str]) -> int:
+    """The iteration a checkpoint holds under ``key``: an integer in [0, 10^9).
 
     Raises:
-        CheckpointError: naming the path, if another trainer wrote it or it lacks ``"iter"``.
+        CheckpointError: naming the file and the field, for anything else.
     """
-    trainer = loaded.get("trainer", TRAINER)  # saves from before the key are rsl-rl's
+    value = loaded.get(key)
+    if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value < 10**9:
+        shown = repr(value) if isinstance(value, (int, float)) else type(value).__name__
+        raise CheckpointError(
+            f"checkpoint {str(path)!r}: {key!r} must be an iteration (an integer >= 0), got "
+            f"{quote(shown)}"
+        )
+    return value
+
+
+def check_rsl_rl(loaded: dict[str, Any], path: str | os.PathLike[str]) -> dict[str, Any]:
+    """``loaded`` (from ``load_checkpoint(path)``) if it is an rsl-rl save from rwalk-train:
+    written by that trainer, with an iteration and the model states as dicts of tensors.
+
+    Raises:
+        CheckpointError: naming the path and the field.
+    """
+    trainer = trainer_of(loaded)
     if trainer != TRAINER:
         raise CheckpointError(
             f"checkpoint {str(path)!r} was written by the {trainer} trainer, not by rsl-rl "
@@ -129,6 +229,16 @@ def check_rsl_rl(loaded: dict[str, Any], path: str | os.PathLike[str]) -> dict[s
     missing = [key for key in ("iter", "actor_state_dict") if key not in loaded]
     if missing:
         raise CheckpointError(f"checkpoint {str(path)!r} lacks {missing}: not an rsl-rl save")
+    checked_iteration(loaded, "iter", path)
+    models = [key for key in loaded if key.endswith("_state_dict") and "optimizer" not in key]
+    for key in models:
+        value = loaded[key]
+        if not isinstance(value, dict) or not all(
+            isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in value.items()
+        ):
+            raise CheckpointError(
+                f"checkpoint {str(path)!r}: {key!r} must be a dict of named tensors"
+            )
     return loaded
 
 
@@ -171,12 +281,19 @@ def newest_checkpoint(
     raise CheckpointError(f"no checkpoint in {str(folder)!r} loads: " + "; ".join(problems))
 
 
+#: Largest pid a lock file may name (Linux's pid_max is at most 2^22).
+MAX_PID = 1 << 22
+
+
 def _lock_holder(lock: Path) -> int | None:
-    """The pid written in a lock file, or None if it is gone or holds no pid."""
+    """The pid written in a lock file, or None if it is gone or holds no valid pid (a
+    number in [1, MAX_PID]: 0, -1 and huge numbers name no single process)."""
     try:
-        return int(lock.read_text().strip())
+        with lock.open("rb") as file:
+            pid = int(file.read(32).strip())
     except (FileNotFoundError, ValueError):
         return None
+    return pid if 1 <= pid <= MAX_PID else None
 
 
 def _is_running(pid: int) -> bool:
@@ -187,6 +304,20 @@ def _is_running(pid: int) -> bool:
     except PermissionError:  # alive, someone else's
         return True
     return True
+
+
+def _make_folder(folder: Path) -> None:
+    """Create a run folder (and its parents).
+
+    Raises:
+        RunSetupError: naming the path, if it (or a parent) is not a folder.
+    """
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise RunSetupError(
+            f"--log-dir {str(folder)!r} is not a folder (a file is in the way)"
+        ) from None
 
 
 @contextmanager
@@ -204,8 +335,13 @@ def run_lock(
         RunSetupError: naming the folder and the pid, if a running process holds the lock.
     """
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    _make_folder(folder)
     lock = folder / LOCK_NAME
+    if lock.is_symlink() or (lock.exists() and not lock.is_file()):
+        raise RunSetupError(
+            f"the lock {str(lock)!r} is not a file (a folder or a link is in the way); "
+            "remove it if no training runs there"
+        )
     fd, mine = tempfile.mkstemp(prefix=f"{LOCK_NAME}.", suffix=".tmp", dir=folder)
     try:
         with os.fdopen(fd, "w") as file:

@@ -15,7 +15,14 @@ from __future__ import annotations
 from rsl_rl.runners import OnPolicyRunner
 
 from rwalk.rl import distributed
-from rwalk.rl.checkpoints import TRAINER, check_rsl_rl, load_checkpoint, save_checkpoint
+from rwalk.rl.checkpoints import (
+    TRAINER,
+    CheckpointError,
+    check_rsl_rl,
+    load_checkpoint,
+    quote,
+    save_checkpoint,
+)
 
 
 class SafeRunner(OnPolicyRunner):
@@ -76,13 +83,34 @@ class SafeRunner(OnPolicyRunner):
         map_location: str | None = None,
         data: bytes | None = None,
     ) -> dict | None:
-        """Load the state ``path`` holds (``data``: its bytes, read by rank 0)."""
+        """Load the state ``path`` holds (``data``: its bytes, read by rank 0).
+
+        Raises:
+            FileNotFoundError: naming the file.
+            CheckpointError: naming the file, if it is not an rsl-rl save, its models do not
+                have the shapes this run's config builds, or its env state is not the env's.
+        """
         loaded = check_rsl_rl(load_checkpoint(path, data), path)
-        if self.alg.load(loaded, load_cfg, strict):
+        try:
+            resumed = self.alg.load(loaded, load_cfg, strict)
+        except (RuntimeError, KeyError, ValueError, TypeError) as error:
+            raise CheckpointError(
+                f"checkpoint {str(path)!r} does not fit this run's models (another "
+                f"--hidden-dims, task or observation pieces?): {quote(error)}"
+            ) from None
+        if resumed:
             self.current_learning_iteration = loaded["iter"]
+        env_state = loaded.get("env_state")
+        if env_state is None and "terrain_level" in loaded:  # saves from before the hook
+            env_state = {"terrain_level": loaded["terrain_level"]}
         load_state_dict = getattr(self.env, "load_state_dict", None)
-        if load_state_dict is not None and loaded.get("env_state"):
-            why = load_state_dict(loaded["env_state"])
+        if load_state_dict is not None and env_state:
+            if not isinstance(env_state, dict):
+                raise CheckpointError(f"checkpoint {str(path)!r}: 'env_state' must be a dict")
+            try:
+                why = load_state_dict(env_state)
+            except ValueError as error:
+                raise CheckpointError(f"checkpoint {str(path)!r}: env_state: {error}") from None
             if why:
                 print(f"[rwalk] {path}: {why}")
-        return loaded.get("infos")
+        return None
