@@ -75,9 +75,9 @@ def test_durations_read_naturally():
 
 
 def test_the_core_reports_each_settle_chunk(monkeypatch):
-    import rwalk.core
+    import rwalk.starts
 
-    monkeypatch.setattr(rwalk.core, "SETTLE_CTRL_BUDGET", 3 * 12 * 8)  # 8 substeps a chunk
+    monkeypatch.setattr(rwalk.starts, "SETTLE_CTRL_BUDGET", 3 * 12 * 8)  # 8 substeps a chunk
     core = ResidualWalkCore(EnvConfig(settle_steps=4, randomize=False), 3, seed=0)
     calls = []
     core.settle_progress = lambda done, total: calls.append((done, total))
