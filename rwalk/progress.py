@@ -4,7 +4,7 @@
     report(0, total)          # a run starts
     report(done, total)       # after each piece of work
 
-Each run is one tqdm bar on stderr (``settling starts:  40%|████ | 400/1000
+Each run is one tqdm bar on stderr (``settling starts:  40%|████      | 400/1000
 [00:04<00:06, 100.00 physics steps/s]``), redrawn at most every ``interval``
 seconds, and left as a last line when a run that drew anything finishes; work
 shorter than ``interval`` draws nothing. Bars are drawn only when the stream is
