@@ -103,6 +103,10 @@ def evaluation_config(
     )
 
 
+#: The worlds the base-gait check walks on, by name (docs/base_gait.md, docs/physics.md).
+BASE_GAIT_WORLDS = {"flat": "model/world_flat.xml", "rough": "model/world_train.xml"}
+
+
 def base_gait_config(world: str, **overrides) -> EnvConfig:
     """The base-gait check's setup (docs/base_gait.md, docs/physics.md): starts from
     standing (no settling), yaw perturbed by ±0.1 rad; on the rough world, starts

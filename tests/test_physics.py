@@ -9,6 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from rwalk import fidelity
 from rwalk.analysis import walk
 from rwalk.assets import load_model
 from rwalk.config import EnvConfig
@@ -16,7 +17,7 @@ from rwalk.constants import MODEL_DIR
 from rwalk.core import ResidualWalkCore
 from rwalk.physics import Physics, describe
 from rwalk.presets import base_gait_config
-from rwalk.runners import fidelity
+from rwalk.runners import fidelity as fidelity_runner
 
 QUICK = EnvConfig(model_path="model/world_flat.xml", settle_steps=0, max_episode_steps=5)
 
@@ -164,7 +165,7 @@ def test_faithful_divides_each_difference_by_the_noise_band():
 
 def test_the_harness_writes_its_table_and_refuses_unknown_candidates(tmp_path, capsys):
     out = tmp_path / "f.json"
-    fidelity.fidelity(
+    fidelity_runner.fidelity(
         ["--robots", "2", "--seconds", "0.1", "--only", "4ms", "--worlds", "flat",
          "--cost-envs", "2", "--cost-rounds", "1", "--cost-window", "0.01", "--json", str(out)]
     )  # fmt: skip
@@ -175,7 +176,7 @@ def test_the_harness_writes_its_table_and_refuses_unknown_candidates(tmp_path, c
     assert saved["cost"]["4ms"] > 0 and saved["cost"]["reference"] > 0
     assert "| flat | 4ms |" in capsys.readouterr().out
     with pytest.raises(SystemExit):
-        fidelity.parse_args(["--only", "4ms,warp"])
+        fidelity_runner.parse_args(["--only", "4ms,warp"])
     assert "unknown candidate(s) ['warp']" in capsys.readouterr().err
 
 
@@ -214,5 +215,5 @@ def test_a_decimation_with_a_timestep_that_misses_the_rate_names_the_timestep():
 @pytest.mark.parametrize("flag", ["--robots", "--seconds", "--cost-rounds", "--cost-window"])
 def test_the_harness_refuses_a_non_positive_count_naming_it(flag, capsys):
     with pytest.raises(SystemExit):
-        fidelity.parse_args([flag, "0"])
+        fidelity_runner.parse_args([flag, "0"])
     assert f"{flag}: expected a positive" in capsys.readouterr().err

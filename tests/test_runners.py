@@ -56,7 +56,7 @@ def test_train_writes_checkpoints_logs_config_and_exports(trained):
 
 def test_tensorboard_has_every_reward_term(trained):
     from rwalk.rewards import TERM_NAMES
-    from rwalk.runners.plot_training import read_scalars
+    from rwalk.tensorboard_events import read_scalars
 
     tags = set(read_scalars(trained))
     expected = {f"Episode_Reward/{term}" for term in TERM_NAMES} | {
@@ -150,7 +150,7 @@ def test_train_torchrl_runs_two_iterations(tmp_path, task, actions):
 
 
 def test_plot_training_draws_the_curves_with_the_base_gait(trained, tmp_path):
-    from rwalk.runners.plot_training import read_scalars
+    from rwalk.tensorboard_events import read_scalars
 
     series = read_scalars(trained)
     assert [step for step, _, _ in series["Train/mean_reward"]] == [0, 1]

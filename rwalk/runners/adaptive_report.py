@@ -20,90 +20,10 @@ import dataclasses
 import json
 from pathlib import Path
 
-import numpy as np
-import torch
-
-from rwalk import ResidualWalkVecEnv, presets
+from rwalk.adaptive_evaluation import compare, gait_traces, plot, table
 from rwalk.cli import NATURAL_INT, POSITIVE_INT, UNIT_FLOAT
-from rwalk.evaluation import Evaluation, evaluate, load_policy, saved_args
-from rwalk.tasks.adaptive_gait import ADAPTED
-
-SPEEDS = (0.05, 0.10, 0.15, 0.20, 0.25)
-
-
-def make_env(task: str, episodes: int, seed: int, scale: float, command: float | None):
-    cfg = presets.evaluation_config(
-        task, scale, command_range=None if command is None else (command, command)
-    )
-    return ResidualWalkVecEnv(episodes, cfg, seed=seed, task=task)
-
-
-def run_row(name, checkpoint, episodes, seed, scale, command=None) -> Evaluation:
-    """One row: the base gait (checkpoint None) or a policy, on ``episodes`` paired episodes."""
-    saved = {} if checkpoint is None else saved_args(checkpoint)
-    task = saved.get("task", "residual_walk")
-    if saved.get("command_range") and command is None:
-        command = presets.EnvConfig().expected_velocity  # it reads a command: the gait's speed
-    env = make_env(task, episodes, seed, scale, command)
-    policy = None if checkpoint is None else load_policy(checkpoint, env)
-    row = evaluate(name, env, seed, policy)
-    asked = "-" if command is None else f"{command:.3f}"
-    return dataclasses.replace(row, name=f"{name} | {scale:g} | {asked}")
-
-
-def gait_trace(checkpoint: Path, seed: int, scale: float, steps: int) -> np.ndarray:
-    """The adaptive policy's four parameters at every step of one episode. (steps, 4)."""
-    env = make_env("adaptive_gait", 1, seed, scale, None)
-    if saved_args(checkpoint).get("command_range"):
-        speed = presets.EnvConfig().expected_velocity
-        env = make_env("adaptive_gait", 1, seed, scale, speed)
-    policy = load_policy(checkpoint, env)
-    env.set_seed(seed)
-    env.core.reset()
-    rows = []
-    with torch.inference_mode():
-        for _ in range(steps):
-            result = env.core.step(policy())
-            rows.append(env.core.task.params[0].tolist())
-            if bool(result.terminated[0] | result.truncated[0]):
-                break
-    return np.array(rows)
-
-
-def plot(traces: dict[str, np.ndarray], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    units = {"step_height": 1000, "step_length": 1000, "cycle_time": 1, "body_height": 1000}
-    labels = {"step_height": "mm", "step_length": "mm", "cycle_time": "s", "body_height": "mm"}
-    fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True)
-    for ax, (i, name) in zip(axes, enumerate(ADAPTED), strict=True):
-        for terrain, trace in traces.items():
-            t = np.arange(len(trace)) * 0.02
-            ax.plot(t, trace[:, i] * units[name], label=terrain)
-        ax.set_ylabel(f"{name} ({labels[name]})")
-        ax.grid(alpha=0.3)
-    axes[0].legend()
-    axes[-1].set_xlabel("time in episode (s)")
-    fig.suptitle("Adaptive policy: gait parameters over one episode (same start)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-
-
-def table(rows: list[Evaluation]) -> str:
-    lines = [
-        "| policy | terrain | commanded (m/s) | fall rate | forward velocity (m/s) "
-        "| velocity error (m/s) | mean return |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
-    ]
-    for r in rows:
-        lines.append(
-            f"| {r.name} | {r.fall_rate:.0%} | {r.forward_velocity:.3f} | "
-            f"{r.velocity_error:.4f} ± {r.velocity_error_se * 1.96:.4f} | {r.mean_return:,.0f} |"
-        )
-    return "\n".join(lines)
+from rwalk.evaluation import Evaluation
+from rwalk.rl.checkpoints import atomic_write_text
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -128,24 +48,12 @@ def main(argv: list[str] | None = None) -> None:
     if args.residual is None or args.adaptive is None:
         parser.error("give --residual and --adaptive checkpoints (or --tables)")
     policies = {"base gait": None, "residual": args.residual, "adaptive": args.adaptive}
-    out = {}
-    for label, scale in (("a", args.train_scale), ("b", args.rough_scale)):
-        out[label] = [run_row(n, c, args.episodes, args.seed, scale) for n, c in policies.items()]
-    out["c"] = [
-        run_row(n, c, args.episodes, args.seed, args.train_scale, speed)
-        for speed in SPEEDS
-        for n, c in policies.items()
-    ]
+    out = compare(policies, args.episodes, args.seed, args.train_scale, args.rough_scale)
     for label, rows in out.items():
         print(f"\n({label})\n{table(rows)}")
     args.out.mkdir(parents=True, exist_ok=True)
-    from rwalk.rl.checkpoints import atomic_write_text
-
     data = {k: [dataclasses.asdict(r) for r in rows] for k, rows in out.items()}
-    traces = {
-        f"terrain {scale:g}": gait_trace(args.adaptive, args.seed, scale, 1000)
-        for scale in (0.0, args.train_scale, args.rough_scale)
-    }
+    traces = gait_traces(args.adaptive, args.seed, (0.0, args.train_scale, args.rough_scale))
     data["gait_means"] = {k: v.mean(axis=0).tolist() for k, v in traces.items()}
     print("\nmean gait parameters over the traced episode:", data["gait_means"])
     atomic_write_text(args.out / "adaptive.json", json.dumps(data, indent=2))

@@ -9,6 +9,7 @@ import argparse
 import time
 
 from rwalk.analysis import walk
+from rwalk.base_gait import summary_lines
 from rwalk.core import ResidualWalkCore
 from rwalk.presets import base_gait_config
 
@@ -29,14 +30,8 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     started = time.perf_counter()
     summary = walk(core, steps).summary()
     elapsed = time.perf_counter() - started
-    print(f"  fall rate            {summary['fall_rate']:.1%}")
-    print(
-        f"  forward speed        {summary['speed']:.4f} m/s  "
-        f"(expected {summary['expected_velocity']:.4f}, ratio {summary['speed_ratio']:.2f})"
-    )
-    print(f"  |v_x - v*| per step  {summary['velocity_error']:.4f} m/s")
-    print(f"  |heading change|     {summary['abs_heading_change']:.4f} rad (mean)")
-    print(f"  |sideways drift|     {summary['abs_sideways_drift']:.4f} m (mean)")
+    for line in summary_lines(summary):
+        print(line)
     print(f"  wall time            {elapsed:.1f} s")
     return summary
 
