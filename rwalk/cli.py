@@ -178,6 +178,24 @@ def parse_dataclass(
         parser.error(str(error))
 
 
+def explicit_fields(cls: type, argv: list[str] | None) -> frozenset[str]:
+    """The fields of ``cls`` that ``argv`` sets itself (not left at their defaults)."""
+    parser = build_parser(cls, None)
+    for action in parser._actions:
+        action.default = argparse.SUPPRESS
+    return frozenset(vars(parser.parse_known_args(argv)[0]))
+
+
+def show_flag(name: str, value: Any) -> str:
+    """A flag as typed on a command line: ``--task adaptive_gait``, ``--hidden-dims 64 64``,
+    ``--no-robust``."""
+    if isinstance(value, bool):
+        return flag(name) if value else "--no-" + name.replace("_", "-")
+    if isinstance(value, (tuple, list)):
+        return f"{flag(name)} {' '.join(map(str, value))}".rstrip()
+    return f"{flag(name)} {value}"
+
+
 def require_at_least(obj: Any, minimum: float, *names: str) -> None:
     """Each named field must be finite and >= minimum (NaN fails too).
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import io
+import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -21,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-from rwalk import episodes
+from rwalk import episodes, presets
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.rl.checkpoints import load_checkpoint, trainer_of
 from rwalk.rl.config import load_saved_args, observation_groups
@@ -48,6 +49,49 @@ class Evaluation:
     contact_score: float
     """Mean over episodes of the per-step contact_pattern term (max 0.2)."""
     mean_length: float
+
+    @classmethod
+    def from_json(cls, data: object) -> Evaluation:
+        """An evaluation written by ``dataclasses.asdict`` and read back from JSON, each
+        field checked (a name of at most 200 characters, numbers).
+
+        Raises:
+            ValueError: naming the field.
+        """
+        if not isinstance(data, dict) or set(data) != {f.name for f in dataclasses.fields(cls)}:
+            raise ValueError(
+                f"an evaluation must be an object with the keys "
+                f"{[f.name for f in dataclasses.fields(cls)]}"
+            )
+        name = data["name"]
+        if not isinstance(name, str) or len(name) > 200:
+            raise ValueError("an evaluation's name must be a text of at most 200 characters")
+        numbers = {k: v for k, v in data.items() if k != "name"}
+        for key, value in numbers.items():
+            if not isinstance(value, (int, float)) or isinstance(value, bool):
+                raise ValueError(f"an evaluation's {key} must be a number")
+        return cls(**data)
+
+
+#: Largest results file (--tables) read back. Bytes.
+MAX_RESULTS_BYTES = 16 << 20
+
+
+def read_results(path: Path) -> object:
+    """A results JSON written by a report (``--json``), read as data (at most
+    MAX_RESULTS_BYTES).
+
+    Raises:
+        ValueError: naming the file, for a file too large or not JSON.
+    """
+    with Path(path).open("rb") as file:
+        data = file.read(MAX_RESULTS_BYTES + 1)
+    if len(data) > MAX_RESULTS_BYTES:
+        raise ValueError(f"{str(path)!r} is larger than {MAX_RESULTS_BYTES} bytes")
+    try:
+        return json.loads(data)
+    except (ValueError, RecursionError) as error:
+        raise ValueError(f"{str(path)!r} is not JSON ({str(error)[:120]})") from None
 
 
 def saved_run(checkpoint: Path):
@@ -87,6 +131,26 @@ def check_checkpoint(checkpoint: Path) -> None:
             f"{str(checkpoint)!r} from the config.json that rwalk-train writes beside it"
         )
     saved_run(checkpoint)  # ConfigError naming the file and the field
+
+
+def check_policy(checkpoint: Path, task: str | None = None):
+    """Fail before any work, naming the file, unless ``checkpoint`` is an rwalk-train
+    policy (of ``task``, if given) whose models load from its run's config.json: the
+    policy is built once on a one-env core of its task. Returns its run's flags.
+
+    Raises:
+        FileNotFoundError, ValueError (``CheckpointError``, ``ConfigError``): naming the
+            file, the field, or both tasks.
+    """
+    check_checkpoint(checkpoint)
+    args = saved_run(checkpoint)
+    if task is not None and args.task != task:
+        raise ValueError(
+            f"checkpoint {str(checkpoint)!r} is a {args.task!r} policy, not a {task!r} one"
+        )
+    config = presets.evaluation_config(args.task, settle_steps=0, command_range=args.env.commands)
+    load_policy(checkpoint, BatchedEnv(1, config, seed=0, task=args.task))
+    return args
 
 
 def load_policy(checkpoint: Path, env: BatchedEnv) -> Callable[[], torch.Tensor]:

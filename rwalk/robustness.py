@@ -29,7 +29,7 @@ from pathlib import Path
 from rwalk import presets
 from rwalk.config import EnvConfig
 from rwalk.envs.torchrl_env import BatchedEnv
-from rwalk.evaluation import Evaluation, evaluate, load_policy
+from rwalk.evaluation import Evaluation, evaluate, load_policy, read_results
 from rwalk.levels import TerrainLevels
 from rwalk.perturbations import Pushes
 from rwalk.randomization import Randomization
@@ -99,6 +99,31 @@ class Row:
     condition: str
     policy: str
     evaluation: Evaluation
+
+
+def read_rows(path: Path) -> list[Row]:
+    """The rows of a written --json, read as data (``evaluation.read_results``), each
+    checked.
+
+    Raises:
+        ValueError: naming the file and what is wrong.
+    """
+    data = read_results(path)
+    rows = data.get("rows") if isinstance(data, dict) else None
+    if not isinstance(rows, list) or len(rows) > 10_000:
+        raise ValueError(f'{str(path)!r} has no list "rows" (of at most 10000)')
+    out = []
+    for i, row in enumerate(rows):
+        if not (isinstance(row, dict) and all(isinstance(row.get(k), str) and len(row[k]) <= 200
+                                              for k in ("condition", "policy"))):  # fmt: skip
+            raise ValueError(f"{str(path)!r}: row {i} needs the texts condition and policy")
+        try:
+            out.append(
+                Row(row["condition"], row["policy"], Evaluation.from_json(row.get("evaluation")))
+            )
+        except ValueError as error:
+            raise ValueError(f"{str(path)!r}: row {i}: {error}") from None
+    return out
 
 
 def condition_config(

@@ -47,6 +47,11 @@ FOOTPRINT_RADIUS = 0.13
 START_STREAM = "start_pose"
 
 
+class SettleError(RuntimeError):
+    """Starts that fall or diverge while settling in every attempt: the start-pose noise,
+    the world or its randomised physics are too hard for the base gait."""
+
+
 def sensor_observation(sensors: Tensor) -> Tensor:
     """Spec observations from sensor rows: contact counts become 0/1. (M, 65) -> (M, 65)."""
     obs = sensors.clone()
@@ -143,7 +148,7 @@ class Starts:
         the ones that fall or diverge (up to SETTLE_ATTEMPTS tries).
 
         Raises:
-            RuntimeError: if some starts still fall or diverge after every attempt.
+            SettleError: if some starts still fall or diverge after every attempt.
         """
         # Env i draws as seed + i, pool entry j as seed + N + j (see the module docstring).
         first = 0 if sim is self.sim else self.num_envs
@@ -158,11 +163,16 @@ class Starts:
             if todo.size == 0:
                 return
         cfg = self.config
-        raise RuntimeError(
+        causes = (
+            f"start-pose noise randomize={randomize}, tilt_noise={cfg.tilt_noise}, "
+            f"yaw_noise={cfg.yaw_noise}, position_noise={cfg.position_noise}"
+        )
+        if cfg.randomization is not None and sim is self.sim:
+            causes += f"; the envs' randomised physics {cfg.randomization}"
+        raise SettleError(
             f"{todo.size} of {ids.size} starts fell or diverged while settling, in each of "
             f"{SETTLE_ATTEMPTS} attempts: the starts are too hard for the base gait "
-            f"(randomize={randomize}, tilt_noise={cfg.tilt_noise}, yaw_noise={cfg.yaw_noise}, "
-            f"position_noise={cfg.position_noise}, world {cfg.model_path}); reduce the noise"
+            f"({causes}; world {cfg.model_path}); reduce the noise or the randomisation"
         )
 
     def _place(self, sim: BatchedSim, ids: np.ndarray, keys: np.ndarray, randomize: bool) -> None:

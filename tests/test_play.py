@@ -14,7 +14,8 @@ import pytest
 import torch
 
 import rwalk.progress
-from rwalk.runners.play import check_checkpoint, command_name, parse_args, play
+from rwalk.evaluation import check_checkpoint
+from rwalk.runners.play import command_name, parse_args, play
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICK = ["--episodes", "2", "--max-steps", "10", "--settle-steps", "3"]

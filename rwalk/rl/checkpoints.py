@@ -26,8 +26,11 @@ from typing import IO, Any
 
 import torch
 
-CHECKPOINT_NAME = re.compile(r"model_(\d+)\.pt")
-"""rsl-rl's checkpoint names; group 1 is the iteration."""
+CHECKPOINT_NAME = re.compile(r"(model|torchrl)_(\d+)\.pt")
+"""Checkpoint names of both trainers (rwalk-train's model_<it>.pt, rwalk-train-torchrl's
+torchrl_<n>.pt); group 1 is the file prefix, group 2 the iteration."""
+PREFIXES = {"rsl_rl": "model", "torchrl": "torchrl"}
+"""The file prefix of each trainer's checkpoints."""
 LOCK_NAME = ".rwalk.lock"
 """The lock file of a run folder; holds the pid of the process writing to it."""
 TRAINER = "rsl_rl"
@@ -93,8 +96,8 @@ MAX_QUOTE = 200
 
 
 def quote(text: object) -> str:
-    """``str(text)`` cut to MAX_QUOTE characters (for error texts of libraries)."""
-    text = str(text)
+    """``str(text)`` on one line, cut to MAX_QUOTE characters (for error texts of libraries)."""
+    text = " ".join(str(text).split())
     return text if len(text) <= MAX_QUOTE else text[: MAX_QUOTE - 3] + "..."
 
 
@@ -111,7 +114,8 @@ def _check_archive(source: IO[bytes], name: str) -> None:
             entries = archive.infolist()
     except (zipfile.BadZipFile, OSError, EOFError, ValueError) as error:
         raise CheckpointError(
-            f"checkpoint {name} is not a torch checkpoint (no zip archive: {quote(error)})"
+            f"checkpoint {name} cannot be read: not a torch checkpoint (no complete zip "
+            f"archive: {quote(error)})"
         ) from None
     if len(entries) > MAX_ENTRIES:
         raise CheckpointError(f"checkpoint {name} has {len(entries)} entries, more than "
@@ -242,39 +246,49 @@ def check_rsl_rl(loaded: dict[str, Any], path: str | os.PathLike[str]) -> dict[s
     return loaded
 
 
-def checkpoint_files(folder: str | os.PathLike[str]) -> list[tuple[int, Path]]:
-    """The ``model_<it>.pt`` files in ``folder`` as (iteration, path), oldest first.
+def checkpoint_files(
+    folder: str | os.PathLike[str], trainer: str | None = None
+) -> list[tuple[int, Path]]:
+    """The checkpoints in ``folder`` as (iteration, path), oldest first: those of
+    ``trainer`` ("rsl_rl": model_<it>.pt, "torchrl": torchrl_<n>.pt), or of both (None).
 
     Temporary files of unfinished writes (``.model_3.pt.x1y2.tmp``) are not checkpoints.
     """
+    prefixes = set(PREFIXES.values()) if trainer is None else {PREFIXES[trainer]}
     found = []
-    for path in Path(folder).glob("model_*.pt"):
+    for path in Path(folder).glob("*_*.pt"):
         match = CHECKPOINT_NAME.fullmatch(path.name)
-        if match and path.is_file():
-            found.append((int(match.group(1)), path))
+        if match and match.group(1) in prefixes and path.is_file():
+            found.append((int(match.group(2)), path))
     return sorted(found)
 
 
 def newest_checkpoint(
-    folder: str | os.PathLike[str], report: Callable[[str], None] = print
+    folder: str | os.PathLike[str],
+    report: Callable[[str], None] = print,
+    trainer: str = TRAINER,
+    check: Callable[[dict[str, Any], Path], dict[str, Any]] | None = None,
 ) -> tuple[Path, dict[str, Any]]:
-    """The checkpoint of ``folder`` with the highest iteration that loads, and its contents.
+    """The checkpoint of ``trainer`` in ``folder`` with the highest iteration that loads and
+    passes ``check`` (default: ``check_rsl_rl``), and its contents.
 
     Each newer file that does not load (a truncated ``model_9.pt``, ...) is
     skipped, and ``report`` is told which and why.
 
     Raises:
-        FileNotFoundError: naming the folder, if it holds no ``model_<it>.pt``.
+        FileNotFoundError: naming the folder, if it holds no checkpoint of the trainer.
         CheckpointError: naming the folder and each file's problem, if none loads.
     """
     folder = Path(folder)
-    candidates = checkpoint_files(folder)
+    check = check or check_rsl_rl
+    candidates = checkpoint_files(folder, trainer)
     if not candidates:
-        raise FileNotFoundError(f"no checkpoint model_<iteration>.pt in {str(folder)!r}")
+        prefix = PREFIXES[trainer]
+        raise FileNotFoundError(f"no checkpoint {prefix}_<iteration>.pt in {str(folder)!r}")
     problems = []
     for _, path in reversed(candidates):
         try:
-            return path, check_rsl_rl(load_checkpoint(path), path)
+            return path, check(load_checkpoint(path), path)
         except CheckpointError as error:
             report(f"skipped {path.name}: {error}")
             problems.append(str(error))
@@ -375,7 +389,8 @@ def remove_unfinished_writes(folder: str | os.PathLike[str]) -> list[Path]:
     """Delete the temporary files that killed ``atomic_write``s of checkpoints and
     config.json left in ``folder``; call only while holding its ``run_lock``."""
     folder = Path(folder)
-    leftovers = [*folder.glob(".model_*.pt.*.tmp"), *folder.glob(".config.json.*.tmp")]
+    patterns = [f".{prefix}_*.pt.*.tmp" for prefix in PREFIXES.values()] + [".config.json.*.tmp"]
+    leftovers = [path for pattern in patterns for path in folder.glob(pattern)]
     for path in leftovers:
         path.unlink(missing_ok=True)
     return leftovers

@@ -13,6 +13,7 @@ critic read; training, evaluation and export all take it from here.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass, field
@@ -21,11 +22,13 @@ from typing import Any
 
 from rwalk.cli import (
     combine,
+    flag,
     from_fields,
     require_at_least,
     require_at_most,
     require_in,
     require_positive,
+    show_flag,
 )
 from rwalk.config import MAX_THREADS
 from rwalk.observations import PRIVILEGED_PIECES, piece_catalog
@@ -214,14 +217,15 @@ def _from_saved(cls, saved: dict):
     return from_fields(cls, {"robust": False} | saved, retired=RETIRED_FLAGS)
 
 
-def load_saved_args(path: Path):
+def load_saved_args(path: Path, cls: type | None = None, trainer: str = "rsl_rl"):
     """The flags a run stored in its config.json (``path``), as data: the file is read
-    only up to MAX_CONFIG_BYTES, parsed as JSON, and each field checked.
+    only up to MAX_CONFIG_BYTES, parsed as JSON, its "trainer" checked, and each field of
+    "args" checked as a field of ``cls`` (default: ``TrainArgs``, rwalk-train's flags).
 
     Raises:
         FileNotFoundError: naming the file.
-        ConfigError: naming the file and what is wrong (size, JSON, the "args" object,
-            an unknown key or a bad field).
+        ConfigError: naming the file and what is wrong (size, JSON, another trainer's
+            run, the "args" object, an unknown key or a bad field).
     """
     path = Path(path)
     try:
@@ -239,10 +243,56 @@ def load_saved_args(path: Path):
         raise ConfigError(f"{str(path)!r} is not JSON ({str(error)[:120]})") from None
     if not isinstance(saved, dict) or not isinstance(saved.get("args"), dict):
         raise ConfigError(f'{str(path)!r} has no object "args" of a run\'s flags')
+    written_by = saved.get("trainer", "rsl_rl")  # rwalk-train's from before the key
+    if written_by != trainer:
+        shown = written_by if isinstance(written_by, str) and len(written_by) <= 32 else "?"
+        raise ConfigError(
+            f"{str(path)!r} is the config of a run of the {shown!r} trainer, not of {trainer!r}"
+        )
     try:
-        return TrainArgs.from_saved(saved["args"])
+        if cls is None:
+            return TrainArgs.from_saved(saved["args"])
+        return from_fields(cls, saved["args"], retired=RETIRED_FLAGS)
     except (ValueError, TypeError) as error:
         raise ConfigError(f"{str(path)!r}: args: {error}") from None
+
+
+#: Flags that may differ from the run's own on --resume: the run's settings (where it
+#: writes, how long, threads, seeds, logging) and how many envs step. Every other flag
+#: (task, world, algorithm, models, observation pieces) comes from the run's config.json.
+RESUME_MAY_CHANGE = (*(f.name for f in dataclasses.fields(RunConfig)), "num_envs")
+
+
+class ResumeConflict(ValueError):
+    """A flag given on --resume that contradicts the resumed run's own."""
+
+
+def restore_run(args, saved, given: frozenset[str] | None, path: Path, config: Path):
+    """``args`` with every flag outside ``RESUME_MAY_CHANGE`` taken from the resumed run's
+    ``saved`` flags (of the same class).
+
+    Args:
+        given: flags the command line set itself (None: every flag of ``args``).
+        path, config: the resumed checkpoint and its run's config.json (for messages).
+
+    Raises:
+        ResumeConflict: naming the flag and both values, if ``given`` sets one to another
+            value than the run's.
+    """
+    changes = {}
+    for f in dataclasses.fields(args):
+        mine, theirs = getattr(args, f.name), getattr(saved, f.name)
+        if f.name in RESUME_MAY_CHANGE or mine == theirs:
+            continue
+        if given is None or f.name in given:
+            raise ResumeConflict(
+                f"--resume {path}: its run trained with {show_flag(f.name, theirs)} (its "
+                f"{config}), not {show_flag(f.name, mine)}; pass {show_flag(f.name, theirs)} "
+                f"to resume it, or leave {flag(f.name)} out (on --resume only the flags "
+                f"{', '.join(map(flag, RESUME_MAY_CHANGE))} may change)"
+            )
+        changes[f.name] = theirs
+    return dataclasses.replace(args, **changes)
 
 
 def _check_across(args) -> None:

@@ -35,6 +35,9 @@ import datetime
 import hashlib
 import json
 import os
+import signal
+import threading
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -137,6 +140,41 @@ def default_threads(group: Group) -> int:
     """Physics threads of a rank when --threads is 0: this machine's cores shared by its
     ranks (never oversubscribed), at least 1."""
     return max(1, cores() // group.local_world_size)
+
+
+#: Seconds between two looks at the launcher; seconds a rank may take to end on its own.
+WATCH_INTERVAL_S = 0.5
+GRACE_S = 10.0
+
+
+def exit_with_launcher() -> None:
+    """End this rank when the process that launched it (torchrun's agent) dies, even by
+    SIGKILL: without it the ranks train on in their own sessions, and rank 0 keeps the
+    run folder's lock.
+
+    A SIGTERM ends the rank as an exception (``SystemExit``), so that its ``finally``
+    blocks run (rank 0 releases the lock). A watchdog thread compares the parent's pid
+    every WATCH_INTERVAL_S seconds; once the parent is gone (the rank was handed to
+    another parent) it sends that SIGTERM, and ends the process outright if the rank is
+    still there GRACE_S seconds later (stuck in a collective, say). (Not the kernel's
+    ``PR_SET_PDEATHSIG``: it fires when the parent *thread* that started the rank ends.)
+    """
+    parent = os.getppid()
+
+    def end(signum, frame):
+        raise SystemExit(f"rank {os.getpid()}: ended (signal {signum}: the launcher is gone "
+                         "or ended the group)")  # fmt: skip
+
+    signal.signal(signal.SIGTERM, end)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(WATCH_INTERVAL_S)
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(GRACE_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="rwalk-launcher-watch", daemon=True).start()
 
 
 def join(group: Group, timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
@@ -318,6 +356,7 @@ __all__ = [
     "check_same_settings",
     "cores",
     "default_threads",
+    "exit_with_launcher",
     "is_group_failure",
     "join",
     "leave",

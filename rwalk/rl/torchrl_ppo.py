@@ -22,7 +22,6 @@ import contextlib
 import dataclasses
 import json
 import time
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -38,9 +37,20 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from rwalk.constants import OBS_LINVEL
-from rwalk.presets import TrainingEnv
-from rwalk.rl.checkpoints import atomic_write_text, run_lock, save_checkpoint
-from rwalk.rl.config import RunConfig
+from rwalk.rl.checkpoints import (
+    CheckpointError,
+    RunSetupError,
+    atomic_write_text,
+    checked_iteration,
+    claim_log_dir,
+    load_checkpoint,
+    newest_checkpoint,
+    quote,
+    run_lock,
+    save_checkpoint,
+    trainer_of,
+)
+from rwalk.rl.config import RunConfig, load_saved_args, restore_run
 from rwalk.rl.torchrl_collect import check_workers, make_collector, make_env, require_backend
 from rwalk.rl.torchrl_config import TorchRLConfig
 
@@ -83,66 +93,129 @@ def make_modules(
     return actor, critic
 
 
-def train(
-    run: RunConfig,
-    setup: TrainingEnv,
-    ppo: TorchRLConfig,
-    *,
-    flags: Mapping[str, Any] | None = None,
-) -> Path:
-    """Run the training; returns the last checkpoint's path.
-
-    Args:
-        run: where it writes, seed, threads, iterations, checkpoints, time budget
-            (``resume``, ``overwrite`` and ``export`` are rwalk-train's only).
-        setup: the envs (per worker with several collectors).
-        ppo: the algorithm, models and collectors.
-        flags: what config.json keeps as ``"args"`` (the command line's values);
-            None: the three configs' fields.
+def check_torchrl(loaded: dict[str, Any], path) -> dict[str, Any]:
+    """``loaded`` (from ``load_checkpoint(path)``) if rwalk-train-torchrl wrote it: its
+    iteration, models, optimizer and normalisations, each of the right type.
 
     Raises:
-        ValueError: ``run`` asks to resume or overwrite, or a minibatch would be empty.
-        RunSetupError: the run folder is in use, or the backend's extra is missing
-            (before anything is written).
+        CheckpointError: naming the file and the field.
+    """
+    trainer = trainer_of(loaded)
+    if trainer != TRAINER:
+        raise CheckpointError(
+            f"checkpoint {str(path)!r} was written by the {trainer} trainer, not by "
+            "rwalk-train-torchrl"
+        )
+    checked_iteration(loaded, "iteration", path)
+    for key in ("actor", "critic", "optimizer", "obs_norm", "critic_norm"):
+        if not isinstance(loaded.get(key), dict):
+            raise CheckpointError(f"checkpoint {str(path)!r}: {key!r} must be a dict of states")
+    for key in ("obs_norm", "critic_norm"):
+        if not all(isinstance(loaded[key].get(k), torch.Tensor) for k in ("loc", "scale")):
+            raise CheckpointError(f"checkpoint {str(path)!r}: {key!r} needs tensors loc, scale")
+    return loaded
+
+
+def resume_point(args, given: frozenset[str] | None = None):
+    """The torchrl checkpoint --resume names (a file, or a folder's newest that loads), its
+    contents, and the flags to train on (``args`` with the run's own task, world and
+    algorithm from its config.json: ``rwalk.rl.config.restore_run``).
+
+    Returns:
+        (path, contents, args), or None without --resume.
+
+    Raises:
+        FileNotFoundError, CheckpointError, ConfigError, ResumeConflict: naming the file,
+            folder or flag.
+        RunSetupError: if the checkpoint leaves nothing to train.
+    """
+    if not args.resume:
+        return None
+    if Path(args.resume).is_dir():
+        path, state = newest_checkpoint(args.resume, trainer=TRAINER, check=check_torchrl)
+    else:
+        path = Path(args.resume)
+        state = check_torchrl(load_checkpoint(path), path)
+    done = state["iteration"]
+    if done >= args.max_iterations:
+        raise RunSetupError(
+            f"--resume {path} holds {done} iterations, so --max-iterations "
+            f"{args.max_iterations} leaves nothing to train; pass --max-iterations "
+            f"{done + 1} or more"
+        )
+    config = path.parent / "config.json"
+    if config.is_file():
+        args = restore_run(args, load_saved_args(config, type(args), TRAINER), given, path, config)
+    return path, state, args
+
+
+def train(args, given: frozenset[str] | None = None) -> Path:
+    """Run the training ``args`` asks for (rwalk-train-torchrl's flags: ``args.run``,
+    ``args.env``, ``args.train``); returns the last checkpoint's path.
+
+    The run folder follows rwalk-train's rule: its lock, and another run's checkpoints
+    (of either trainer) refused unless --resume or --overwrite. --resume goes on from a
+    torchrl checkpoint: models, optimizer and normalisations, with the run's own flags
+    (``given``: the ones the command line set itself; see ``resume_point``).
+
+    Raises:
+        FileNotFoundError, CheckpointError, ConfigError, ResumeConflict, RunSetupError:
+            before anything is trained, naming the file, folder or flag (a folder in use
+            or holding another run, a backend's missing extra).
         WorkerDied: a collector worker exited.
     """
     clock = time.perf_counter()  # the time budget counts from here, env building included
-    if run.resume or run.overwrite:
-        raise ValueError(
-            f"the TorchRL trainer cannot resume or overwrite a run yet, got resume="
-            f"{run.resume!r}, overwrite={run.overwrite}"
-        )
-    ppo.check_batch(setup.num_envs)
-    require_backend(ppo.backend)  # before anything is written
-    if flags is None:
-        flags = {**dataclasses.asdict(run), **dataclasses.asdict(setup), **dataclasses.asdict(ppo)}
-    with run_lock(run.log_dir):  # one run writes to a folder at a time
-        return _train(run, setup, ppo, dict(flags), clock)
+    require_backend(args.train.backend)  # before anything is written
+    log_dir = Path(args.log_dir)
+    resume = resume_point(args, given)
+    if resume is not None:
+        args = resume[2]
+    with run_lock(log_dir):  # one run writes to a folder at a time
+        claimed = resume and (resume[0], resume[1]["iteration"])
+        claim_log_dir(log_dir, claimed, Path(args.resume).is_dir() if args.resume else False,
+                      args.overwrite)  # fmt: skip
+        return _train(args, resume and resume[1], clock)
 
 
-def _train(
-    run: RunConfig, setup: TrainingEnv, ppo: TorchRLConfig, flags: dict, clock: float
-) -> Path:
+def _train(args, state: dict[str, Any] | None, clock: float) -> Path:
+    run, setup, ppo = args.run, args.env, args.train
     log_dir = Path(run.log_dir)
     torch.manual_seed(run.seed)
+    norms = None
+    if state is not None:  # the resumed run's normalisation, not a new one
+        norms = {key: (state[saved]["loc"], state[saved]["scale"])
+                 for key, saved in (("policy", "obs_norm"), ("critic", "critic_norm"))}  # fmt: skip
     # With several collectors this env only gives the specs and the normalisation.
-    env = make_env(setup, ppo.reward_scale, seed=run.seed, threads=run.threads)
-    config = {"trainer": TRAINER, "args": flags, "env": dataclasses.asdict(env.base_env.config)}
+    env = make_env(setup, ppo.reward_scale, seed=run.seed, threads=run.threads, norms=norms)
+    config = {"trainer": TRAINER, "args": dataclasses.asdict(args),
+              "env": dataclasses.asdict(env.base_env.config)}  # fmt: skip
     atomic_write_text(log_dir / "config.json", json.dumps(config, indent=2))
     actor, critic = make_modules(ppo, env)
+    first = 0
+    if state is not None:
+        try:
+            actor.load_state_dict(state["actor"])
+            critic.load_state_dict(state["critic"])
+        except (RuntimeError, KeyError) as error:
+            raise CheckpointError(
+                f"checkpoint {str(args.resume)!r} does not fit this run's models: {quote(error)}"
+            ) from None
+        first = state["iteration"]
+        print(f"[torchrl] resumed after iteration {first} from {args.resume}")
     norms = {t.in_keys[0]: t.state_dict() for t in env.transform if isinstance(t, ObservationNorm)}
     kept = {  # what every checkpoint holds beside the modules
         "obs_norm": norms["policy"],  # the actor's input normalisation
         "critic_norm": norms["critic"],
         "groups": {key: list(pieces) for key, pieces in env.base_env.groups.items()},
     }
-    collector = make_collector(
-        env, actor, setup, ppo, seed=run.seed, threads=run.threads, iterations=run.max_iterations
-    )
+    collector = make_collector(env, actor, setup, ppo, seed=run.seed, threads=run.threads,
+                               iterations=run.max_iterations - first)  # fmt: skip
     del env  # with several collectors the workers step their own envs
     try:
         frames = ppo.frames_per_batch(setup.num_envs)
-        checkpoint = _learn(run, ppo, frames, collector, actor, critic, kept, clock)
+        optimizer_state = state["optimizer"] if state is not None else None
+        checkpoint = _learn(run, ppo, frames, collector, actor, critic, kept, clock, first,
+                            optimizer_state)  # fmt: skip
     except BaseException:
         # Shut the workers down on an error too (they would keep this process alive), but
         # report the error itself: with a worker lost, shutting down may fail as well.
@@ -162,9 +235,12 @@ def _learn(
     critic: ValueOperator,
     kept: dict[str, Any],
     clock: float,
+    first: int = 0,
+    optimizer_state: dict | None = None,
 ) -> Path:
-    """PPO on the collector's batches of ``frames`` frames, until ``run.max_iterations``
-    or the iteration that spends ``run.max_minutes``; returns the last checkpoint's path."""
+    """PPO on the collector's batches of ``frames`` frames, from iteration ``first`` until
+    ``run.max_iterations`` or the iteration that spends ``run.max_minutes``; returns the
+    last checkpoint's path."""
     advantage = GAE(gamma=ppo.gamma, lmbda=ppo.lmbda, value_network=critic, average_gae=True)
     loss = ClipPPOLoss(
         actor,
@@ -175,6 +251,8 @@ def _learn(
         loss_critic_type="smooth_l1",
     )
     optimizer = torch.optim.Adam(loss.parameters(), lr=ppo.learning_rate)
+    if optimizer_state is not None:
+        optimizer.load_state_dict(optimizer_state)
     buffer = ReplayBuffer(
         storage=LazyTensorStorage(frames),
         sampler=SamplerWithoutReplacement(),
@@ -182,8 +260,8 @@ def _learn(
     )
     budget = run.max_minutes * 60.0
     started = tick = time.perf_counter()
-    checkpoint = Path(run.log_dir) / "torchrl_0.pt"
-    for it, batch in enumerate(collector):  # (num_envs, T) or (collectors, num_envs, T)
+    checkpoint = Path(run.log_dir) / f"torchrl_{first}.pt"
+    for it, batch in enumerate(collector, start=first):  # (N, T) or (collectors, N, T)
         collected = time.perf_counter()
         with torch.no_grad():
             advantage(batch)
@@ -203,7 +281,7 @@ def _learn(
         velocity = batch["next", "observation"][..., OBS_LINVEL.start].mean().item()
         now = time.perf_counter()
         out_of_time = now - clock >= budget
-        eta = (now - started) / (it + 1) * (run.max_iterations - it - 1)
+        eta = (now - started) / (it + 1 - first) * (run.max_iterations - it - 1)
         eta = min(eta, max(budget - (now - clock), 0.0))
         print(
             f"[torchrl] iteration {it + 1}/{run.max_iterations}  reward/step {reward:7.2f}  "

@@ -31,6 +31,7 @@ from rwalk.export import export_policy
 from rwalk.progress import Progress
 from rwalk.rl import distributed
 from rwalk.rl.checkpoints import (
+    TRAINER,
     CheckpointError,
     RunSetupError,
     atomic_write_text,
@@ -40,14 +41,23 @@ from rwalk.rl.checkpoints import (
     newest_checkpoint,
     run_lock,
 )
-from rwalk.rl.config import ConfigError, load_saved_args, observation_groups
+from rwalk.rl.config import (
+    ConfigError,
+    ResumeConflict,
+    load_saved_args,
+    observation_groups,
+    restore_run,
+)
 from rwalk.rl.rsl_rl_env import RslRlVecEnv
 from rwalk.rl.runner import SafeRunner
+from rwalk.starts import SettleError
 
 PER_RANK_FLAGS = ("threads",)
 """Flags the ranks of one training may set differently: a machine's own resources."""
-SETUP_ERRORS = (CheckpointError, ConfigError, FileNotFoundError, RunSetupError)
-"""Errors of a run that cannot start as asked: rank 0's reach every rank (same message)."""
+SETUP_ERRORS = (CheckpointError, ConfigError, FileNotFoundError, ResumeConflict, RunSetupError,
+                SettleError, MemoryError)  # fmt: skip
+"""Errors of a run that cannot start as asked (a one-line message each): rank 0's setup
+errors reach every rank (same message)."""
 
 
 def make_env(args) -> RslRlVecEnv:
@@ -77,13 +87,18 @@ def start_as_base_gait(runner) -> None:
         last.bias.zero_()
 
 
-def resume_point(args) -> tuple[Path, int] | None:
-    """The checkpoint --resume names (a file, or a folder's newest that loads) and its iteration.
+def resume_point(args, given: frozenset[str] | None = None):
+    """The checkpoint --resume names (a file, or a folder's newest that loads), its
+    iteration, and the flags to train on: ``args`` with the run's own task, world and
+    models (``restore_run``; from its config.json where there is one).
+
+    Returns:
+        (path, iteration, args), or None without --resume.
 
     Raises:
         FileNotFoundError, CheckpointError, ConfigError: naming the file or folder.
-        RunSetupError: if the checkpoint's iteration leaves nothing to train, or its run
-            trained another kind of world.
+        RunSetupError: if the checkpoint's iteration leaves nothing to train, or a flag
+            contradicts the run's.
     """
     if not args.resume:
         return None
@@ -92,7 +107,7 @@ def resume_point(args) -> tuple[Path, int] | None:
     else:
         path = Path(args.resume)
         state = check_rsl_rl(load_checkpoint(path), path)
-    iteration = int(state["iter"])
+    iteration = state["iter"]
     if iteration + 1 >= args.max_iterations:
         raise RunSetupError(
             f"--resume {path} holds iteration {iteration}, so --max-iterations "
@@ -101,14 +116,8 @@ def resume_point(args) -> tuple[Path, int] | None:
         )
     saved = path.parent / "config.json"
     if saved.is_file():
-        trained = load_saved_args(saved)
-        if trained.robust != args.robust:
-            kind = "--robust" if trained.robust else "--no-robust"
-            raise RunSetupError(
-                f"--resume {path}: its run trained with {kind} (its {saved}), and the robust "
-                f"training's policy and critic read other pieces; pass {kind} to resume it"
-            )
-    return path, iteration
+        args = restore_run(args, load_saved_args(saved), given, path, saved)
+    return path, iteration, args
 
 
 def run_settings(args) -> dict[str, Any]:
@@ -136,11 +145,17 @@ def rank_args(args, group: distributed.Group):
     return dataclasses.replace(args, seed=args.seed + group.rank * stride, threads=threads)
 
 
-def train(args) -> Path:
+def train(args, given: frozenset[str] | None = None) -> Path:
     """Run the training; returns the last checkpoint's path.
 
     Under torchrun (WORLD_SIZE > 1) every rank runs this and joins the gloo group
-    first; a single process sets nothing up.
+    first, and ends when its launcher dies (``distributed.exit_with_launcher``); a
+    single process sets nothing up.
+
+    Args:
+        given: the flags the command line set itself; with --resume the others come
+            from the run's config.json (``restore_run``; None: every flag is as given,
+            and one that contradicts the run's is refused).
 
     Raises:
         FileNotFoundError, CheckpointError, RunSetupError: before anything is
@@ -153,43 +168,48 @@ def train(args) -> Path:
     """
     clock = time.perf_counter()  # the wall-time budget counts from here, env building included
     group = distributed.Group.from_env()
+    if group.distributed:
+        distributed.exit_with_launcher()
     distributed.join(group, args.dist_timeout)
     try:
         distributed.check_same_settings(group, run_settings(args))
-        return _train(args, group, clock)
+        return _train(args, given, group, clock)
     finally:
         distributed.leave()
 
 
-def _claim_run(args, group: distributed.Group, stack: contextlib.ExitStack):
+def _claim_run(args, given, group: distributed.Group, stack: contextlib.ExitStack):
     """Rank 0 checks --resume, takes the run folder's lock (held until ``stack`` closes) and
-    claims the folder; every rank gets the resume point (rank 0's) or rank 0's error, and
-    the checkpoint's bytes (None for one process: it reads the file itself)."""
+    claims the folder; every rank gets the resume point (rank 0's) or rank 0's error, the
+    flags to train on (the resumed run's, rank 0's), and the checkpoint's bytes (None for
+    one process: it reads the file itself)."""
     resume, failure = None, None
     if group.main:
         try:
-            resume = resume_point(args)
+            resume = resume_point(args, given)
             log_dir = Path(args.log_dir)
             stack.enter_context(run_lock(log_dir))
-            claim_log_dir(log_dir, resume, Path(args.resume).is_dir() if args.resume else False,
+            claim_log_dir(log_dir, resume and resume[:2],
+                          Path(args.resume).is_dir() if args.resume else False,
                           args.overwrite)  # fmt: skip
         except Exception as error:  # the other ranks wait to hear of it
             failure = error
     distributed.raise_if_failed(group, failure, SETUP_ERRORS)
     if not group.distributed:
-        return resume, None
-    shared = distributed.broadcast_json(group, resume and [str(resume[0]), resume[1]])
+        return (resume[:2], resume[2], None) if resume else (None, args, None)
+    sent = resume and [str(resume[0]), resume[1], dataclasses.asdict(resume[2])]
+    shared = distributed.broadcast_json(group, sent)
     if shared is None:
-        return None, None
+        return None, args, None
     data = distributed.broadcast_bytes(group, resume[0].read_bytes() if resume else None)
-    return (Path(shared[0]), int(shared[1])), data
+    return (Path(shared[0]), int(shared[1])), type(args).from_saved(shared[2]), data
 
 
-def _train(args, group: distributed.Group, clock: float) -> Path:
+def _train(args, given, group: distributed.Group, clock: float) -> Path:
     say = print if group.main else lambda *_, **__: None  # rank 0 speaks for the group
     log_dir = Path(args.log_dir)
     with contextlib.ExitStack() as stack:  # rank 0 holds the lock until the run ends
-        resume, data = _claim_run(args, group, stack)
+        resume, args, data = _claim_run(args, given, group, stack)
         mine = rank_args(args, group)
         torch.manual_seed(args.seed + group.rank)
         if mine.threads:  # the process's share of the cores, for learning too
@@ -218,7 +238,8 @@ def _train(args, group: distributed.Group, clock: float) -> Path:
             runner.current_learning_iteration += 1  # continue after the saved iteration
             say(f"resumed from {resume[0]}: next iteration {runner.current_learning_iteration}")
         if group.main:
-            config = {"args": dataclasses.asdict(args), "env": dataclasses.asdict(env.env.config)}
+            config = {"trainer": TRAINER, "args": dataclasses.asdict(args),
+                      "env": dataclasses.asdict(env.env.config)}  # fmt: skip
             atomic_write_text(log_dir / "config.json", json.dumps(config, indent=2))
         checkpoint = _learn(args, runner, group, clock)
         if args.export and group.main:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from rwalk.adaptive_evaluation import compare, gait_traces, plot, table
 from rwalk.cli import NATURAL_INT, POSITIVE_INT, UNIT_FLOAT
-from rwalk.evaluation import Evaluation
+from rwalk.evaluation import Evaluation, check_policy, read_results
 from rwalk.rl.checkpoints import atomic_write_text
 
 
@@ -41,12 +41,23 @@ def main(argv: list[str] | None = None) -> None:
     add("--tables", type=Path, help="only print the tables of an adaptive.json")
     args = parser.parse_args(argv)
     if args.tables:
-        data = json.loads(args.tables.read_text())
-        for label in ("a", "b", "c"):
-            print(f"\n({label})\n{table([Evaluation(**row) for row in data[label]])}")
+        try:
+            data = read_results(args.tables)
+            tables = {label: [Evaluation.from_json(row) for row in data[label]]
+                      for label in ("a", "b", "c")}  # fmt: skip
+        except (OSError, ValueError, KeyError, TypeError) as error:
+            parser.error(f"--tables: not an adaptive.json of this report ({error})")
+        for label, rows in tables.items():
+            print(f"\n({label})\n{table(rows)}")
         return
     if args.residual is None or args.adaptive is None:
         parser.error("give --residual and --adaptive checkpoints (or --tables)")
+    for flag, path, task in (("--residual", args.residual, "residual_walk"),
+                             ("--adaptive", args.adaptive, "adaptive_gait")):  # fmt: skip
+        try:  # every file, before any row runs
+            check_policy(path, task)
+        except (OSError, ValueError) as error:
+            parser.error(f"{flag}: {error}")
     policies = {"base gait": None, "residual": args.residual, "adaptive": args.adaptive}
     out = compare(policies, args.episodes, args.seed, args.train_scale, args.rough_scale)
     for label, rows in out.items():

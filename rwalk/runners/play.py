@@ -34,7 +34,7 @@ from rwalk.config import EnvConfig
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.evaluation import (
     Evaluation,
-    check_checkpoint,
+    check_policy,
     evaluate,
     load_policy,
     saved_run,
@@ -87,10 +87,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("give --checkpoint PATH, --base-gait, or both")
     if args.checkpoint:
         try:
-            check_checkpoint(args.checkpoint)
-        except (FileNotFoundError, ValueError) as error:
+            args.task = check_policy(args.checkpoint).task
+        except (OSError, ValueError) as error:
             parser.error(f"--checkpoint: {error}")
-        args.task = saved_run(args.checkpoint).task
     try:
         presets.get_task(args.task)
     except ValueError as error:

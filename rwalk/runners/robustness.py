@@ -20,10 +20,10 @@ import json
 from pathlib import Path
 
 from rwalk.cli import NATURAL_INT, POSITIVE_INT, command
-from rwalk.evaluation import Evaluation
+from rwalk.evaluation import check_policy
 from rwalk.levels import TerrainLevels
 from rwalk.rl.checkpoints import atomic_write_text
-from rwalk.robustness import CONDITIONS, Row, condition_config, plot, run_condition, table
+from rwalk.robustness import CONDITIONS, condition_config, plot, read_rows, run_condition, table
 
 
 def _checkpoint(text: str) -> tuple[str, Path]:
@@ -66,15 +66,20 @@ def main(argv: list[str] | None = None) -> None:
     add("--tables", type=Path, help="only print the table (and --plot) of a written --json")
     args = parser.parse_args(argv)  # fmt: skip
     if args.tables:
-        data = json.loads(args.tables.read_text())
-        rows = [
-            Row(r["condition"], r["policy"], Evaluation(**r["evaluation"])) for r in data["rows"]
-        ]
+        try:
+            rows = read_rows(args.tables)
+        except (OSError, ValueError) as error:
+            parser.error(f"--tables: {error}")
     else:
         try:
             TerrainLevels().check_level(args.map_level)
         except ValueError as error:
             parser.error(f"--map-level: {error}")
+        for label, path in args.checkpoint:  # every file, before any row runs
+            try:
+                check_policy(path, "residual_walk")
+            except (OSError, ValueError) as error:
+                parser.error(f"--checkpoint {label}: {error}")
         policies: dict[str, Path | None] = {"base gait": None, **dict(args.checkpoint)}
         rows = []
         for name in args.conditions:

@@ -23,7 +23,11 @@ differ): ranks that differ refuse to start, naming the flags.
 
 Every flag is a field of the run's configs (rwalk.rl.config.RunConfig,
 rwalk.presets.TrainingEnv, rwalk.rl.config.TrainConfig); config.json stores
-them, and play and the reports rebuild the policy from it.
+them, and play and the reports rebuild the policy from it. --resume goes on with
+the run's own task, world, PPO and model settings from its config.json: only the
+run settings (--log-dir, --seed, --resume, --overwrite, --max-iterations,
+--max-minutes, --save-interval, --threads, --export, --dist-timeout) and
+--num-envs may change; another value of any other flag is refused, naming it.
 
 Writes to --log-dir: TensorBoard events (every reward term, episode length, fall
 rate, forward velocity, terrain levels), checkpoints, config.json, and at the
@@ -39,7 +43,7 @@ it marks a run in progress.
 
 from __future__ import annotations
 
-from rwalk.cli import command, parse_dataclass
+from rwalk.cli import command, explicit_fields, parse_dataclass
 from rwalk.rl import distributed, training
 from rwalk.rl.config import TrainArgs as Args
 
@@ -60,7 +64,7 @@ def main(argv: list[str] | None = None) -> None:
         group = distributed.Group.from_env()
         if group.distributed:
             where = f"rank {group.rank} of {group.world_size}: "
-        training.train(args)
+        training.train(args, explicit_fields(Args, argv))
     except (*training.SETUP_ERRORS, distributed.GroupError) as error:
         raise SystemExit(f"{PROG}: error: {where}{error}") from None
     except RuntimeError as error:

@@ -18,7 +18,11 @@ Writes config.json ({"trainer": "torchrl", "args", "env"}) and checkpoints
 torchrl_<n>.pt (the state after <n> iterations, every --save-interval, at the end
 and when --max-minutes is spent; marked "trainer": "torchrl"), atomically, and
 prints one progress line per iteration (with that iteration's frames/s, overall
-and while collecting). .rwalk.lock in --log-dir marks a run in progress.
+and while collecting). A run folder belongs to one run, as with rwalk-train:
+.rwalk.lock marks a run in progress, another run's checkpoints (of either trainer)
+are refused unless --overwrite, and --resume goes on from a torchrl_<n>.pt (or a
+folder's newest) with the run's own flags (only the run settings and --num-envs
+may change).
 
 Several collector workers (rwalk.rl.torchrl_collect):
 
@@ -33,12 +37,10 @@ cores // collectors); policy weights go to the workers after every update.
 
 from __future__ import annotations
 
-import dataclasses
-
-from rwalk.cli import combine, command, parse_dataclass
+from rwalk.cli import combine, command, explicit_fields, parse_dataclass
 from rwalk.presets import TrainingEnv
-from rwalk.rl.checkpoints import RunSetupError
-from rwalk.rl.config import RunConfig
+from rwalk.rl.checkpoints import CheckpointError, RunSetupError
+from rwalk.rl.config import ConfigError, ResumeConflict, RunConfig
 from rwalk.rl.torchrl_collect import WorkerDied
 from rwalk.rl.torchrl_config import TorchRLConfig
 from rwalk.rl.torchrl_ppo import train
@@ -56,7 +58,7 @@ Args = combine(
     "Args",
     {"run": RunConfig, "env": TrainingEnv, "train": TorchRLConfig},
     defaults={"log_dir": "logs/torchrl", "max_iterations": 50, "num_envs": 256},
-    exclude=("resume", "overwrite", "export", "dist_timeout"),
+    exclude=("export", "dist_timeout"),
     doc="A TorchRL PPO run: every field is a command-line flag (--num-envs, ...), checked on "
     "creation by the config it belongs to (RunConfig, TrainingEnv, TorchRLConfig).",
     namespace={"check": _check},
@@ -67,9 +69,11 @@ def main(argv: list[str] | None = None) -> None:
     """The ``rwalk-train-torchrl`` command."""
     prog = command("rwalk.runners.train_torchrl")
     args = parse_dataclass(Args, argv, __doc__, prog=prog)
+    refused = (CheckpointError, ConfigError, FileNotFoundError, ResumeConflict, RunSetupError,
+               WorkerDied)  # fmt: skip
     try:
-        train(args.run, args.env, args.train, flags=dataclasses.asdict(args))
-    except (RunSetupError, WorkerDied) as error:  # folder in use, extra missing, worker lost
+        train(args, explicit_fields(Args, argv))
+    except refused as error:  # a folder in use or another run's, a bad --resume, a worker lost
         raise SystemExit(f"{prog}: error: {error}") from None
 
 
