@@ -201,6 +201,16 @@ def trainer_of(loaded: dict[str, Any]) -> str:
     return "unknown"
 
 
+def require_trainer(loaded: dict[str, Any], path, trainer: str, writer: str) -> None:
+    """Raise a CheckpointError naming the file and both trainers unless ``trainer`` (shown
+    as ``writer``) wrote ``loaded``."""
+    found = trainer_of(loaded)
+    if found != trainer:
+        raise CheckpointError(
+            f"checkpoint {str(path)!r} was written by the {found} trainer, not by {writer}"
+        )
+
+
 def checked_iteration(loaded: dict[str, Any], key: str, path: str | os.PathLike[str]) -> int:
     """The iteration a checkpoint holds under ``key``: an integer in [0, 10^9).
 
@@ -224,12 +234,7 @@ def check_rsl_rl(loaded: dict[str, Any], path: str | os.PathLike[str]) -> dict[s
     Raises:
         CheckpointError: naming the path and the field.
     """
-    trainer = trainer_of(loaded)
-    if trainer != TRAINER:
-        raise CheckpointError(
-            f"checkpoint {str(path)!r} was written by the {trainer} trainer, not by rsl-rl "
-            "(rwalk-train)"
-        )
+    require_trainer(loaded, path, TRAINER, "rsl-rl (rwalk-train)")
     missing = [key for key in ("iter", "actor_state_dict") if key not in loaded]
     if missing:
         raise CheckpointError(f"checkpoint {str(path)!r} lacks {missing}: not an rsl-rl save")

@@ -46,9 +46,9 @@ from rwalk.rl.checkpoints import (
     load_checkpoint,
     newest_checkpoint,
     quote,
+    require_trainer,
     run_lock,
     save_checkpoint,
-    trainer_of,
 )
 from rwalk.rl.config import RunConfig, load_saved_args, restore_run
 from rwalk.rl.torchrl_collect import check_workers, make_collector, make_env, require_backend
@@ -100,12 +100,7 @@ def check_torchrl(loaded: dict[str, Any], path) -> dict[str, Any]:
     Raises:
         CheckpointError: naming the file and the field.
     """
-    trainer = trainer_of(loaded)
-    if trainer != TRAINER:
-        raise CheckpointError(
-            f"checkpoint {str(path)!r} was written by the {trainer} trainer, not by "
-            "rwalk-train-torchrl"
-        )
+    require_trainer(loaded, path, TRAINER, "rwalk-train-torchrl")
     checked_iteration(loaded, "iteration", path)
     for key in ("actor", "critic", "optimizer", "obs_norm", "critic_norm"):
         if not isinstance(loaded.get(key), dict):
