@@ -292,3 +292,99 @@ def test_failed_collectives_are_told_from_other_errors():
     assert distributed.is_group_failure(RuntimeError(gloo))
     assert distributed.is_group_failure(dist.DistBackendError("NCCL communicator aborted"))
     assert not distributed.is_group_failure(RuntimeError("3 of 8 starts fell while settling"))
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie waiting to be reaped has ended)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, IndexError):
+        return False
+    return state not in ("Z", "X")
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
+def test_ranks_end_when_their_launcher_is_killed(tmp_path):
+    run_dir = tmp_path / "run"
+    launcher = subprocess.Popen(
+        [*TORCHRUN, "--standalone", "--nproc-per-node", "2", "-m", "rwalk.runners.train",
+         *TINY, "--max-iterations", "100000", "--log-dir", str(run_dir)],
+        cwd=ROOT, env=environment(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True, start_new_session=True,
+    )  # fmt: skip
+    pids, seen = set(), []
+    try:
+        for line in launcher.stdout:  # until both ranks train
+            seen.append(line)
+            if "[rwalk] rank" in line and "(pid " in line:
+                pids.add(int(line.split("(pid ")[1].split(")")[0]))
+            if len(pids) == 2 and "[rwalk] iteration" in line:
+                break
+        assert len(pids) == 2, "".join(seen[-40:])
+        os.kill(launcher.pid, signal.SIGKILL)  # the launcher alone
+        launcher.wait()
+        deadline = time.monotonic() + 30.0
+        while any(_alive(pid) for pid in pids) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not any(_alive(pid) for pid in pids), "ranks outlived their launcher"
+        assert not (run_dir / LOCK_NAME).exists(), "rank 0 ended holding the folder's lock"
+    finally:
+        for pid in pids:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(launcher.pid, signal.SIGKILL)
+
+
+def test_two_agents_as_two_nodes_train_resume_and_end_together(tmp_path):
+    """torchrun's multi-node launch on this machine: two agents (--nnodes 2, one process
+    each) meet through a c10d rendezvous, train one run, resume it, and end together."""
+    run_dir = tmp_path / "run"
+
+    def nodes(*flags: str) -> list[tuple[int, str]]:
+        port = free_port()
+        agents = [
+            subprocess.Popen(
+                [
+                    *TORCHRUN,
+                    "--nnodes",
+                    "2",
+                    "--node-rank",
+                    str(node),
+                    "--nproc-per-node",
+                    "1",
+                    "--rdzv-backend",
+                    "c10d",
+                    "--rdzv-endpoint",
+                    f"127.0.0.1:{port}",
+                    "--rdzv-id",
+                    f"rwalk-{port}",
+                    "-m",
+                    "rwalk.runners.train",
+                    *TINY,
+                    "--threads",
+                    "1",
+                    "--log-dir",
+                    str(run_dir),
+                    *flags,
+                ],
+                cwd=ROOT,
+                env=environment(),
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+            )  # fmt: skip
+            for node in (0, 1)
+        ]
+        return finish(agents, timeout=300)
+
+    first = nodes("--max-iterations", "2")
+    assert [code for code, _ in first] == [0, 0], first[0][1][-3000:] + first[1][1][-3000:]
+    assert all("rank" in out and "of 2" in out for _, out in first)
+    assert [it for it, _ in checkpoint_files(run_dir)] == [0, 1]
+    again = nodes("--resume", str(run_dir), "--max-iterations", "3")
+    assert [code for code, _ in again] == [0, 0], again[0][1][-3000:] + again[1][1][-3000:]
+    assert "resumed from" in again[0][1] + again[1][1]
+    assert [it for it, _ in checkpoint_files(run_dir)] == [0, 1, 2]
+    assert load_checkpoint(run_dir / "model_2.pt")["iter"] == 2
+    assert not (run_dir / LOCK_NAME).exists()

@@ -359,3 +359,49 @@ def test_the_args_of_a_run_round_trip_through_its_config_json(tmp_path):
     path = tmp_path / "config.json"
     path.write_text(json.dumps({"args": dataclasses.asdict(args)}))
     assert load_saved_args(path) == args
+
+
+# 3. both trainers own their folders ----------------------------------------------------------
+
+TORCHRL = ["--num-envs", "4", "--num-steps-per-env", "4", "--num-mini-batches", "2",
+           "--settle-steps", "2", "--max-episode-steps", "20", "--hidden-dims", "8",
+           "--save-interval", "1"]  # fmt: skip
+
+
+def torchrl_main(*flags: str) -> None:
+    from rwalk.runners import train_torchrl
+
+    train_torchrl.main([*TORCHRL, *flags])
+
+
+def test_the_torchrl_trainer_owns_its_folder_and_resumes(tmp_path, run_folder, capsys):
+    folder = tmp_path / "torchrl"
+    torchrl_main("--max-iterations", "1", "--log-dir", str(folder))
+    config = (folder / "config.json").read_text()
+    with pytest.raises(SystemExit, match="already holds another run's checkpoints"):
+        torchrl_main("--max-iterations", "1", "--log-dir", str(folder))  # twice into one folder
+    assert (folder / "config.json").read_text() == config  # nothing replaced
+    torchrl_main("--resume", str(folder), "--max-iterations", "2", "--log-dir", str(folder))
+    assert "resumed after iteration 1" in capsys.readouterr().out
+    resumed = load_checkpoint(folder / "torchrl_2.pt")
+    assert resumed["iteration"] == 2 and resumed["trainer"] == "torchrl"
+    # into rwalk-train's run folder: refused, its files untouched
+    other = tmp_path / "rsl"
+    shutil.copytree(run_folder, other)
+    before = {p.name: p.read_bytes() for p in other.iterdir() if p.is_file()}
+    with pytest.raises(SystemExit, match="already holds another run's checkpoints"):
+        torchrl_main("--max-iterations", "1", "--log-dir", str(other))
+    assert {p.name: p.read_bytes() for p in other.iterdir() if p.is_file()} == before
+
+
+def test_rsl_rl_tools_name_a_torchrl_folder_in_one_line(tmp_path):
+    folder = tmp_path / "torchrl"
+    torchrl_main("--max-iterations", "1", "--log-dir", str(folder))
+    from rwalk.runners import train
+
+    with pytest.raises(SystemExit, match="no checkpoint model_<iteration>.pt"):
+        train.main(["--resume", str(folder), "--log-dir", str(tmp_path / "out")])
+    with pytest.raises(SystemExit, match="written by the torchrl trainer"):
+        train.main(["--resume", str(folder / "torchrl_1.pt"), "--log-dir", str(tmp_path / "o")])
+    done = cli("rwalk.runners.play", "--checkpoint", str(folder / "torchrl_1.pt"))
+    one_line_error(done, "--checkpoint", "rwalk-train-torchrl")
