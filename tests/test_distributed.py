@@ -341,42 +341,18 @@ def test_two_agents_as_two_nodes_train_resume_and_end_together(tmp_path):
     each) meet through a c10d rendezvous, train one run, resume it, and end together."""
     run_dir = tmp_path / "run"
 
+    def agent(node: int, port: int, flags: tuple[str, ...]) -> subprocess.Popen:
+        rendezvous = ["--rdzv-backend", "c10d", "--rdzv-endpoint", f"127.0.0.1:{port}",
+                      "--rdzv-id", f"rwalk-{port}"]  # fmt: skip
+        command = [*TORCHRUN, "--nnodes", "2", "--node-rank", str(node), "--nproc-per-node",
+                   "1", *rendezvous, "-m", "rwalk.runners.train", *TINY, "--threads", "1",
+                   "--log-dir", str(run_dir), *flags]  # fmt: skip
+        return subprocess.Popen(command, cwd=ROOT, env=environment(), stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True)  # fmt: skip
+
     def nodes(*flags: str) -> list[tuple[int, str]]:
         port = free_port()
-        agents = [
-            subprocess.Popen(
-                [
-                    *TORCHRUN,
-                    "--nnodes",
-                    "2",
-                    "--node-rank",
-                    str(node),
-                    "--nproc-per-node",
-                    "1",
-                    "--rdzv-backend",
-                    "c10d",
-                    "--rdzv-endpoint",
-                    f"127.0.0.1:{port}",
-                    "--rdzv-id",
-                    f"rwalk-{port}",
-                    "-m",
-                    "rwalk.runners.train",
-                    *TINY,
-                    "--threads",
-                    "1",
-                    "--log-dir",
-                    str(run_dir),
-                    *flags,
-                ],
-                cwd=ROOT,
-                env=environment(),
-                stdout=subprocess.PIPE,
-                stderr=subprocess.STDOUT,
-                text=True,
-            )  # fmt: skip
-            for node in (0, 1)
-        ]
-        return finish(agents, timeout=300)
+        return finish([agent(node, port, flags) for node in (0, 1)], timeout=300)
 
     first = nodes("--max-iterations", "2")
     assert [code for code, _ in first] == [0, 0], first[0][1][-3000:] + first[1][1][-3000:]

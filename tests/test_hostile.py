@@ -399,7 +399,7 @@ def test_rsl_rl_tools_name_a_torchrl_folder_in_one_line(tmp_path):
     torchrl_main("--max-iterations", "1", "--log-dir", str(folder))
     from rwalk.runners import train
 
-    with pytest.raises(SystemExit, match="no checkpoint model_<iteration>.pt"):
+    with pytest.raises(SystemExit, match=r"no checkpoint model_<iteration>\.pt"):
         train.main(["--resume", str(folder), "--log-dir", str(tmp_path / "out")])
     with pytest.raises(SystemExit, match="written by the torchrl trainer"):
         train.main(["--resume", str(folder / "torchrl_1.pt"), "--log-dir", str(tmp_path / "o")])
