@@ -3,6 +3,7 @@
 
 import contextlib
 import json
+import os
 import pickle
 import subprocess
 import sys
@@ -108,6 +109,42 @@ def test_two_ray_workers_train_two_iterations(tmp_path):
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert "[torchrl] iteration 2/2" in done.stdout
     assert load_checkpoint(tmp_path / "torchrl_2.pt")["iteration"] == 2
+
+
+@pytest.mark.slow
+def test_ray_workers_train_on_a_running_local_ray_cluster(tmp_path):
+    """A real cluster, as a user would run one: ``ray start --head``, then the trainer with
+    RAY_ADDRESS=auto (its workers are the cluster's, not a private ray.init). Ray 2.60's
+    ``ray start`` asks for its token (RAY_AUTH_MODE=token, in ~/.ray/auth_token)."""
+    pytest.importorskip("ray", reason='the ray extra: pip install -e ".[ray]"')
+    ray = Path(sys.executable).with_name("ray")
+    port = str(_free_port())
+    env = {**os.environ, "RAY_ADDRESS": "auto", "RAY_AUTH_MODE": "token"}
+    started = subprocess.run([str(ray), "start", "--head", "--port", port, "--num-cpus", "2",
+                              "--include-dashboard", "false", "--disable-usage-stats"],
+                             env=env, capture_output=True, text=True, timeout=180,
+                             check=False)  # fmt: skip
+    assert started.returncode == 0, started.stdout[-2000:] + started.stderr[-2000:]
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "rwalk.runners.train_torchrl", *TINY, "--collectors", "2",
+             "--backend", "ray", "--log-dir", str(tmp_path)],
+            cwd=ROOT, env=env, capture_output=True, text=True, timeout=600, check=False,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+        assert "[torchrl] iteration 2/2" in done.stdout
+        assert load_checkpoint(tmp_path / "torchrl_2.pt")["iteration"] == 2
+    finally:
+        subprocess.run([str(ray), "stop", "--force"], env=env, capture_output=True,
+                       timeout=120, check=False)  # fmt: skip
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
 
 
 def test_max_minutes_stops_after_the_iteration_that_spends_it(tmp_path, capsys):
