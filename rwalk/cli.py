@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import ast
 import dataclasses
+import functools
 import inspect
 import itertools
 import math
@@ -263,10 +264,43 @@ def number_type(kind: type, check: Callable[[float], bool], wanted: str):
     return parse
 
 
-POSITIVE_INT = number_type(int, lambda v: v >= 1, "a positive integer")
-NATURAL_INT = number_type(int, lambda v: v >= 0, "an integer >= 0")
+#: Largest count a command line takes (int32: episodes, steps, envs).
+MAX_COUNT = 2**31 - 1
+POSITIVE_INT = number_type(
+    int, lambda v: 1 <= v <= MAX_COUNT, f"a positive integer (at most {MAX_COUNT})"
+)
+NATURAL_INT = number_type(
+    int, lambda v: 0 <= v <= MAX_COUNT, f"an integer >= 0 (at most {MAX_COUNT})"
+)
+SEED = number_type(int, lambda v: 0 <= v < 2**63, "a seed in [0, 2**63)")
 UNIT_FLOAT = number_type(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
 POSITIVE_FLOAT = number_type(float, lambda v: v > 0.0, "a positive number")
+SECONDS = number_type(
+    float, lambda v: 0.0 < v <= 86_400.0, "a positive number of seconds (at most 86400)"
+)
+
+
+def one_line_errors(module: str):
+    """Decorator of a runner's ``main(argv)``: an error a user's input can cause (a bad
+    value, too little memory, a file or folder that cannot be written, starts that cannot
+    settle) ends the command with one line naming it, ``<prog>: error: ...``, exit status
+    2 for values, 1 otherwise; no traceback."""
+
+    def wrap(main: Callable) -> Callable:
+        @functools.wraps(main)
+        def run(argv: list[str] | None = None):
+            from rwalk.starts import SettleError
+
+            try:
+                return main(argv)
+            except (ValueError, MemoryError, OSError, SettleError) as error:
+                text = " ".join(str(error).split()) or type(error).__name__
+                print(f"{command(module)}: error: {text[:2000]}", file=sys.stderr)
+                raise SystemExit(2 if isinstance(error, ValueError) else 1) from None
+
+        return run
+
+    return wrap
 
 
 #: Most items of a tuple field, and most characters of a string field, read from a file.

@@ -405,3 +405,25 @@ def test_rsl_rl_tools_name_a_torchrl_folder_in_one_line(tmp_path):
         train.main(["--resume", str(folder / "torchrl_1.pt"), "--log-dir", str(tmp_path / "o")])
     done = cli("rwalk.runners.play", "--checkpoint", str(folder / "torchrl_1.pt"))
     one_line_error(done, "--checkpoint", "rwalk-train-torchrl")
+
+
+def test_runners_end_input_errors_in_one_line(tmp_path, capsys):
+    from rwalk.runners import play, robustness
+
+    with pytest.raises(SystemExit) as exit_:
+        play.main(["--base-gait", "--episodes", str(2**31 - 1)])
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and err.endswith(f"num_envs must be at most {1 << 24}, got "
+                                                  f"{2**31 - 1}") and "\n" not in err  # fmt: skip
+    (tmp_path / "out.json").mkdir()  # a folder where the results file should go
+    with pytest.raises(SystemExit) as exit_:
+        play.main(["--base-gait", "--episodes", "1", "--max-steps", "2", "--settle-steps", "1",
+                   "--json", str(tmp_path / "out.json")])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert exit_.value.code == 1 and "error:" in err and "out.json" in err
+    (tmp_path / "bad.json").write_text('{"rows": [{"condition": "x", "policy": 3}]}')
+    with pytest.raises(SystemExit) as exit_:
+        robustness.main(["--tables", str(tmp_path / "bad.json")])
+    assert (
+        exit_.value.code == 2 and "needs the texts condition and policy" in capsys.readouterr().err
+    )

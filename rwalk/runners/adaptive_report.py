@@ -21,11 +21,12 @@ import json
 from pathlib import Path
 
 from rwalk.adaptive_evaluation import compare, gait_traces, plot, table
-from rwalk.cli import NATURAL_INT, POSITIVE_INT, UNIT_FLOAT
+from rwalk.cli import NATURAL_INT, POSITIVE_INT, UNIT_FLOAT, one_line_errors
 from rwalk.evaluation import Evaluation, check_policy, read_results
 from rwalk.rl.checkpoints import atomic_write_text
 
 
+@one_line_errors("rwalk.runners.adaptive_report")
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter

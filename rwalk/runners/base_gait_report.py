@@ -24,13 +24,15 @@ from rwalk.base_gait import (
     plot_paths,
     table_row,
 )
+from rwalk.cli import POSITIVE_INT, SECONDS, one_line_errors
 
 
+@one_line_errors("rwalk.runners.base_gait_report")
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("docs"))
-    parser.add_argument("--envs", type=int, default=64)
-    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--envs", type=POSITIVE_INT, default=64, help="robots walked at once")
+    parser.add_argument("--seconds", type=SECONDS, default=20.0, help="simulated time")
     args = parser.parse_args(argv)
 
     args.out.mkdir(parents=True, exist_ok=True)

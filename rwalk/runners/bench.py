@@ -29,6 +29,8 @@ from pathlib import Path
 from rwalk.bench.envpool import envpool_missing
 from rwalk.bench.modes import MODES_HELP, ONLY_MODES, WorkerFailed, run_worker, worker_runs
 from rwalk.bench.report import LABELS, add_ratios_to_floor, plot, summary, table, worker_line
+from rwalk.cli import one_line_errors
+from rwalk.config import MAX_ENVS, MAX_THREADS
 from rwalk.rl.checkpoints import atomic_write_text
 
 SIZES = (1, 16, 256, 1024, 4096, 8192)
@@ -48,7 +50,8 @@ def parse_only(text: str) -> tuple[str, int, int]:
         mode, n, threads = parts[0].strip(), int(parts[1]), int(parts[2])
     except (IndexError, ValueError):
         raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
-    if len(parts) != 3 or mode not in ONLY_MODES or n < 1 or threads < (2 if mode == "t" else 1):
+    bad = n < 1 or n > MAX_ENVS or threads < (2 if mode == "t" else 1) or threads > MAX_THREADS
+    if len(parts) != 3 or mode not in ONLY_MODES or bad:
         raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}")
     return mode, n, threads
 
@@ -61,6 +64,8 @@ def positive_seconds(text: str) -> float:
         value = math.nan
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, got {text!r}")
+    if value > 3600:
+        raise argparse.ArgumentTypeError(f"expected at most 3600 seconds, got {text!r}")
     return value
 
 
@@ -145,6 +150,7 @@ def _sweep(args: argparse.Namespace) -> tuple[list[dict], int]:
     return results, failed
 
 
+@one_line_errors("rwalk.runners.bench")
 def main(argv: list[str] | None = None) -> int:
     """Console script ``rwalk-bench``: exit status 1 if measurements failed and none
     succeeded (a skipped one, such as (e) without envpool, is no failure)."""

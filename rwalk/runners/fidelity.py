@@ -28,7 +28,7 @@ import argparse
 import json
 from pathlib import Path
 
-from rwalk.cli import POSITIVE_FLOAT, POSITIVE_INT, command
+from rwalk.cli import POSITIVE_FLOAT, POSITIVE_INT, SECONDS, command, one_line_errors
 from rwalk.fidelity import (
     CANDIDATES,
     CONTROL_DT,
@@ -47,7 +47,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--robots", type=POSITIVE_INT, default=256, help="robots per run")
-    parser.add_argument("--seconds", type=POSITIVE_FLOAT, default=20.0, help="simulated time")
+    parser.add_argument("--seconds", type=SECONDS, default=20.0, help="simulated time")
     parser.add_argument(
         "--only", type=_names, default=list(CANDIDATES), help="comma-separated candidates"
     )
@@ -107,6 +107,7 @@ def fidelity(argv: list[str] | None = None) -> dict:
     return results
 
 
+@one_line_errors("rwalk.runners.fidelity")
 def main(argv: list[str] | None = None) -> None:
     fidelity(argv)
 

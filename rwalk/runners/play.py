@@ -29,7 +29,14 @@ from dataclasses import asdict
 from pathlib import Path
 
 from rwalk import presets
-from rwalk.cli import NATURAL_INT, POSITIVE_FLOAT, POSITIVE_INT, UNIT_FLOAT, command
+from rwalk.cli import (
+    NATURAL_INT,
+    POSITIVE_FLOAT,
+    POSITIVE_INT,
+    UNIT_FLOAT,
+    command,
+    one_line_errors,
+)
 from rwalk.config import EnvConfig
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.evaluation import (
@@ -142,6 +149,7 @@ def play(argv: list[str] | None = None) -> list[Evaluation]:
     return rows
 
 
+@one_line_errors("rwalk.runners.play")
 def main(argv: list[str] | None = None) -> None:
     """Console script ``rwalk-play`` (returns None: its exit status is 0)."""
     play(argv)

@@ -17,9 +17,11 @@ import json
 from pathlib import Path
 
 from rwalk import learning_curves
+from rwalk.cli import one_line_errors
 from rwalk.tensorboard_events import read_scalars
 
 
+@one_line_errors("rwalk.runners.plot_training")
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter

@@ -19,7 +19,7 @@ import dataclasses
 import json
 from pathlib import Path
 
-from rwalk.cli import NATURAL_INT, POSITIVE_INT, command
+from rwalk.cli import NATURAL_INT, POSITIVE_INT, command, one_line_errors
 from rwalk.evaluation import check_policy
 from rwalk.levels import TerrainLevels
 from rwalk.rl.checkpoints import atomic_write_text
@@ -35,6 +35,7 @@ def _checkpoint(text: str) -> tuple[str, Path]:
     return (label or path.parent.name), path
 
 
+@one_line_errors("rwalk.runners.robustness")
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog=command("rwalk.runners.robustness"), description=__doc__,

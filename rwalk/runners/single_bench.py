@@ -10,9 +10,10 @@ from __future__ import annotations
 import argparse
 
 from rwalk.bench.single import CASES, SingleBench, measure
-from rwalk.cli import POSITIVE_INT
+from rwalk.cli import POSITIVE_INT, one_line_errors
 
 
+@one_line_errors("rwalk.runners.single_bench")
 def main(argv: list[str] | None = None) -> list[SingleBench]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=POSITIVE_INT, default=200, help="env steps per round")

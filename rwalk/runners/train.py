@@ -43,7 +43,7 @@ it marks a run in progress.
 
 from __future__ import annotations
 
-from rwalk.cli import command, explicit_fields, parse_dataclass
+from rwalk.cli import command, explicit_fields, one_line_errors, parse_dataclass
 from rwalk.rl import distributed, training
 from rwalk.rl.config import TrainArgs as Args
 
@@ -55,6 +55,7 @@ def parse_args(argv: list[str] | None = None) -> Args:
     return parse_dataclass(Args, argv, __doc__, prog=PROG)
 
 
+@one_line_errors("rwalk.runners.train")
 def main(argv: list[str] | None = None) -> None:
     """The ``rwalk-train`` command; a run that cannot start exits with a one-line error
     (under torchrun, naming the rank), and so does a rank whose group failed."""

@@ -37,7 +37,7 @@ cores // collectors); policy weights go to the workers after every update.
 
 from __future__ import annotations
 
-from rwalk.cli import combine, command, explicit_fields, parse_dataclass
+from rwalk.cli import combine, command, explicit_fields, one_line_errors, parse_dataclass
 from rwalk.presets import TrainingEnv
 from rwalk.rl.checkpoints import CheckpointError, RunSetupError
 from rwalk.rl.config import ConfigError, ResumeConflict, RunConfig
@@ -65,6 +65,7 @@ Args = combine(
 )
 
 
+@one_line_errors("rwalk.runners.train_torchrl")
 def main(argv: list[str] | None = None) -> None:
     """The ``rwalk-train-torchrl`` command."""
     prog = command("rwalk.runners.train_torchrl")

@@ -10,17 +10,19 @@ import time
 
 from rwalk.analysis import walk
 from rwalk.base_gait import summary_lines
+from rwalk.cli import NATURAL_INT, POSITIVE_INT, SECONDS, UNIT_FLOAT, one_line_errors
 from rwalk.core import ResidualWalkCore
 from rwalk.presets import base_gait_config
 
 
+@one_line_errors("rwalk.runners.walk_demo")
 def main(argv: list[str] | None = None) -> dict[str, float]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--world", default="model/world_flat.xml", help="MJCF world")
-    parser.add_argument("--envs", type=int, default=64, help="robots walked at once")
-    parser.add_argument("--seconds", type=float, default=20.0, help="simulated time")
-    parser.add_argument("--terrain-scale", type=float, default=1.0, help="roughness 0..1")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--envs", type=POSITIVE_INT, default=64, help="robots walked at once")
+    parser.add_argument("--seconds", type=SECONDS, default=20.0, help="simulated time")
+    parser.add_argument("--terrain-scale", type=UNIT_FLOAT, default=1.0, help="roughness 0..1")
+    parser.add_argument("--seed", type=NATURAL_INT, default=0, help="episode seed")
     args = parser.parse_args(argv)
 
     config = base_gait_config(args.world, terrain_scale=args.terrain_scale)
