@@ -8,6 +8,7 @@ torchrun would set, when the ranks need different flags."""
 
 import contextlib
 import os
+import re
 import shutil
 import signal
 import socket
@@ -312,14 +313,22 @@ def test_ranks_end_when_their_launcher_is_killed(tmp_path):
         cwd=ROOT, env=environment(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
         text=True, start_new_session=True,
     )  # fmt: skip
-    pids, seen = set(), []
-    try:
-        for line in launcher.stdout:  # until both ranks train
+    pids: set[int] = set()
+    seen: list[str] = []
+    training = threading.Event()
+
+    def read() -> None:  # both ranks write to one pipe: their lines may interleave
+        for line in launcher.stdout:
             seen.append(line)
-            if "[rwalk] rank" in line and "(pid " in line:
-                pids.add(int(line.split("(pid ")[1].split(")")[0]))
+            pids.update(
+                int(pid) for pid in re.findall(r"\[rwalk\] rank \d+ of \d+ \(pid (\d+)\)", line)
+            )
             if len(pids) == 2 and "[rwalk] iteration" in line:
-                break
+                training.set()
+
+    threading.Thread(target=read, daemon=True).start()
+    try:
+        training.wait(timeout=180)
         assert len(pids) == 2, "".join(seen[-40:])
         os.kill(launcher.pid, signal.SIGKILL)  # the launcher alone
         launcher.wait()
