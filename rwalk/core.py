@@ -106,9 +106,9 @@ class Core:
         """The task: actions, observation pieces, reward terms."""
         self.terms = self.task.reward_terms()
         """The task's declared reward terms, in the order they are added."""
-        self.episodes = Episodes(
-            n, [t.name for t in self.terms], self.world.control_dt, config.max_episode_steps
-        )
+        cycle = round(config.gait.cycle_time / self.world.control_dt)
+        self.episodes = Episodes(n, [t.name for t in self.terms], self.world.control_dt,
+                                 config.max_episode_steps, cycle)  # fmt: skip
         self.physics = PhysicsRandomizer(
             config.randomization, self.world.model, self.sim.batch, n, self.world.decimation
         )
@@ -240,7 +240,9 @@ class Core:
         self.obs[rows] = self.starts.place(ids, randomize)
         self.task.reset(rows)
         self.task.draw_commands(rows)
-        ep.start(rows, self.obs[rows, OBS_POS.start], self.obs[rows, OBS_POS.start + 1])
+        start = self.obs[rows]
+        ep.start(rows, start[:, OBS_POS.start], start[:, OBS_POS.start + 1],
+                 start[:, OBS_LINVEL.start])  # fmt: skip
         self.resets += ids.size
         if ids.size == self.num_envs:
             self._started = True

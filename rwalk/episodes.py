@@ -45,10 +45,16 @@ class Episodes:
         terms: names of the reward terms, in the order they are summed.
         control_dt: duration of one env step. Seconds.
         max_steps: env steps before truncation.
+        cycle_steps: env steps of one gait cycle (the window of ``cycle_speed``).
     """
 
     def __init__(
-        self, num_envs: int, terms: Sequence[str], control_dt: float, max_steps: int
+        self,
+        num_envs: int,
+        terms: Sequence[str],
+        control_dt: float,
+        max_steps: int,
+        cycle_steps: int = 1,
     ) -> None:
         n = num_envs
         self.control_dt = control_dt
@@ -71,9 +77,20 @@ class Episodes:
         """Sum of forward velocity x control dt over the current episode. Shape: (N,). m."""
         self.speed_error = torch.zeros(n, dtype=torch.float64)
         """Sum of |v_x - v*| over the current episode's steps. Shape: (N,). m/s."""
+        self.recent = torch.zeros(n, max(1, cycle_steps), dtype=torch.float64)
+        """The forward velocities of the last gait cycle's steps, a ring (the episode's
+        first velocity before it has walked a cycle). Shape: (N, cycle steps). m/s."""
+        self.recent_sum = torch.zeros(n, dtype=torch.float64)
+        """The running sum of ``recent``. Shape: (N,). m/s."""
+        self.slot = torch.zeros((), dtype=torch.long)
+        """The ring's slot the next step writes (the same for every env)."""
 
-    def start(self, rows: Tensor, x0: Tensor, y0: Tensor) -> None:
-        """Begin the episodes of ``rows`` at torso positions (x0, y0). Shapes: (M,)."""
+    def start(self, rows: Tensor, x0: Tensor, y0: Tensor, v0: Tensor) -> None:
+        """Begin the episodes of ``rows`` at torso positions (x0, y0), forward velocity v0.
+        Shapes: (M,)."""
+        window = self.recent.shape[1]
+        self.recent[rows] = v0.unsqueeze(-1)
+        self.recent_sum[rows] = v0 * window
         self.episode_step[rows] = 0
         self.walked_steps[rows] = 0
         self.x0[rows] = x0
@@ -112,7 +129,16 @@ class Episodes:
             self.sums[name] += term
         self.distance += velocity * self.control_dt
         self.speed_error += (velocity - target).abs()
+        slot = int(self.slot)
+        self.recent_sum += velocity - self.recent[:, slot]  # elementwise: batch-independent
+        self.recent[:, slot] = velocity
+        self.slot.fill_((slot + 1) % self.recent.shape[1])
         return truncated
+
+    def cycle_speed(self) -> Tensor:
+        """Each env's forward velocity averaged over the last gait cycle's steps. Shape:
+        (N,). m/s."""
+        return self.recent_sum / self.recent.shape[1]
 
     def log(self, env_ids: Tensor, target: Tensor | float) -> dict[str, Tensor]:
         """Per-env statistics of the episodes ending in ``env_ids`` (call before reset).
@@ -142,7 +168,8 @@ class Episodes:
         return {
             "episode_step": self.episode_step, "walked_steps": self.walked_steps,
             "x0": self.x0, "y0": self.y0, "fell": self.fell, "distance": self.distance,
-            "speed_error": self.speed_error,
+            "speed_error": self.speed_error, "recent": self.recent,
+            "recent_sum": self.recent_sum, "slot": self.slot,
             **{f"sum/{name}": total for name, total in self.sums.items()},
         }  # fmt: skip
 

@@ -24,7 +24,7 @@ import torch
 
 from rwalk import episodes, presets
 from rwalk.envs.torchrl_env import BatchedEnv
-from rwalk.rl.checkpoints import load_checkpoint, trainer_of
+from rwalk.rl.checkpoints import CheckpointError, check_rsl_rl, load_checkpoint, quote, trainer_of
 from rwalk.rl.config import load_saved_args, observation_groups
 from rwalk.rl.rsl_rl_env import RslRlVecEnv
 
@@ -153,11 +153,66 @@ def check_policy(checkpoint: Path, task: str | None = None):
     return args
 
 
-def load_policy(checkpoint: Path, env: BatchedEnv) -> Callable[[], torch.Tensor]:
-    """The checkpoint's deterministic policy on ``env``: a callable returning the actions
-    of the current state. Shape: () -> (N, action_dim)."""
-    from rwalk.rl.runner import SafeRunner
+class Policy:
+    """A trained policy acting on a batched env: ``policy()`` gives the actions of the current
+    state (deterministic: the Gaussian's mean), ``policy.reset()`` clears a recurrent
+    policy's memory (all envs, or those of a boolean mask) at episodes' starts.
 
+    Args:
+        model: the rsl-rl actor (or distilled student), eval mode.
+        adapter: the groups it reads (its ``policy`` group).
+    """
+
+    def __init__(self, model: torch.nn.Module, adapter: RslRlVecEnv) -> None:
+        self.model, self.adapter = model, adapter
+
+    def __call__(self) -> torch.Tensor:
+        """Shape: () -> (N, action_dim)."""
+        with torch.inference_mode():
+            return self.model(self.adapter.get_observations())
+
+    def reset(self, dones: torch.Tensor | None = None) -> None:
+        """Forget the memory of every env (None) or of those where ``dones`` is True."""
+        self.model.reset(None if dones is None else dones.to(torch.long))
+
+    @property
+    def recurrent(self) -> bool:
+        return bool(self.model.is_recurrent)
+
+
+def policy_model(args, adapter: RslRlVecEnv, state: dict) -> torch.nn.Module:
+    """The actor (PPO) or student (distillation) of a checkpoint's ``state``, built from its
+    run's flags ``args`` on the groups of ``adapter``, in eval mode.
+
+    Raises:
+        CheckpointError: naming nothing of the file's content, if its model does not have
+            the shapes the config builds.
+    """
+    from rsl_rl.utils import resolve_class
+
+    model_class, model_cfg = resolve_class(args.train.model())
+    with contextlib.redirect_stdout(io.StringIO()):
+        model = model_class(adapter.get_observations(), {"actor": ["policy"]}, "actor",
+                            adapter.num_actions, **model_cfg)  # fmt: skip
+    key = "student_state_dict" if "student_state_dict" in state else "actor_state_dict"
+    try:
+        model.load_state_dict(state[key], strict=True)
+    except (RuntimeError, KeyError) as error:
+        raise CheckpointError(
+            f"the checkpoint's {key} does not fit this run's models (another --hidden-dims, "
+            f"--actor, task or observation pieces?): {quote(error)}"
+        ) from None
+    return model.eval()
+
+
+def load_policy(checkpoint: Path, env: BatchedEnv) -> Policy:
+    """The checkpoint's deterministic policy on ``env`` (a PPO actor or a distilled
+    student, MLP or recurrent), rebuilt from its run's config.json.
+
+    Raises:
+        FileNotFoundError, ValueError (``CheckpointError``, ``ConfigError``): naming the
+            file, or the tasks.
+    """
     check_checkpoint(checkpoint)
     args = saved_run(checkpoint)
     if args.task != env.core.task.name:
@@ -165,20 +220,15 @@ def load_policy(checkpoint: Path, env: BatchedEnv) -> Callable[[], torch.Tensor]
             f"checkpoint {str(checkpoint)!r} is a {args.task!r} policy; the env runs "
             f"{env.core.task.name!r}"
         )
-    groups = observation_groups(env.core.task, args.env, args.policy_obs)
-    adapter = RslRlVecEnv(env, policy_obs=groups["policy"], critic_obs=groups["critic"],
+    groups = observation_groups(env.core.task, args.env, args.train)
+    adapter = RslRlVecEnv(env, policy_obs=groups["policy"], critic_obs=(),
                           reward_scale=args.reward_scale)  # fmt: skip
-    with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the whole architecture
-        runner = SafeRunner(adapter, args.train.to_rsl_rl(args.save_interval), log_dir=None,
-                            device="cpu")  # fmt: skip
-    runner.load(str(checkpoint))
-    policy = runner.get_inference_policy()
-
-    def act() -> torch.Tensor:
-        with torch.inference_mode():
-            return policy(adapter.get_observations())
-
-    return act
+    state = check_rsl_rl(load_checkpoint(checkpoint), checkpoint)
+    try:
+        model = policy_model(args, adapter, state)
+    except CheckpointError as error:
+        raise CheckpointError(f"checkpoint {str(checkpoint)!r}: {error}") from None
+    return Policy(model, adapter)
 
 
 def evaluate(
@@ -201,6 +251,8 @@ def evaluate(
     core = env.core
     env.set_seed(seed)
     core.reset()
+    if policy is not None and hasattr(policy, "reset"):
+        policy.reset()  # a recurrent policy remembers nothing of earlier episodes
     n = core.num_envs
     limit = core.config.max_episode_steps
     report = progress or (lambda done, total: None)

@@ -23,6 +23,13 @@ The output is the action in [-1, 1] units (the env clips), foot offsets FL, FR,
 RL, RR (x, y, z). ``policy_input(obs, info)`` builds one input row from the
 Gymnasium env's observation and ``info`` (keys ``phase`` and
 ``lateral_offset``).
+
+A recurrent policy (``--actor gru`` / ``lstm``) carries its state in the ONNX
+graph's inputs and outputs: ``(obs, h_in[, c_in])`` -> ``(actions, h_out[,
+c_out])``, each state of shape (layers, batch, hidden); feed zeros at an
+episode's start and each step the outputs of the step before. ``policy.json``'s
+``"recurrent"`` says which and how large. The TorchScript file of a recurrent
+policy keeps its state itself for one env (``reset()`` at an episode's start).
 """
 
 from __future__ import annotations
@@ -128,13 +135,38 @@ def policy_input(
     return np.concatenate(parts)
 
 
+class _GruOnnx(torch.nn.Module):
+    """rsl-rl's ONNX model of a GRU policy with its state as a plain input and output:
+    ``(obs, h_in)`` -> ``(actions, h_out)``. Shapes: obs (B, D), h (layers, B, hidden)."""
+
+    kind, states = "gru", ("h",)
+
+    def __init__(self, model: torch.nn.Module) -> None:
+        super().__init__()
+        self.model = model
+        self.layers, self.hidden = model.num_layers, model.hidden_size
+
+    def forward(self, obs: torch.Tensor, h_in: torch.Tensor):
+        actions, h, _ = self.model(obs, h_in)
+        return actions, h
+
+
+class _LstmOnnx(_GruOnnx):
+    """As ``_GruOnnx`` for an LSTM: ``(obs, h_in, c_in)`` -> ``(actions, h_out, c_out)``."""
+
+    kind, states = "lstm", ("h", "c")
+
+    def forward(self, obs: torch.Tensor, h_in: torch.Tensor, c_in: torch.Tensor):
+        return self.model(obs, h_in, c_in)
+
+
 def _policy_and_pieces(runner_or_policy, pieces: Sequence[str] | None):
     """The rsl-rl model and the pieces of its input (from the runner's env if it has one)."""
     alg = getattr(runner_or_policy, "alg", None)
     policy = alg.get_policy() if alg is not None else runner_or_policy
     if not hasattr(policy, "as_jit") or not hasattr(policy, "obs_dim"):
         raise TypeError(
-            f"export_policy takes an rsl-rl OnPolicyRunner or MLPModel, "
+            f"export_policy takes an rsl-rl runner or its MLPModel / RNNModel, "
             f"got {type(runner_or_policy).__name__}"
         )
     env = getattr(runner_or_policy, "env", None)
@@ -195,7 +227,29 @@ def export_policy(
     jit_path = atomic_write(folder / "policy.pt", lambda file: torch.jit.save(scripted, file))
 
     model = policy.as_onnx(verbose=False).to("cpu").eval()
+    inputs, outputs, example, shapes = ["obs"], ["actions"], (torch.zeros(2, size),), [{0: ...}]
+    if getattr(policy, "is_recurrent", False):
+        model = (_LstmOnnx if model.rnn_type == "lstm" else _GruOnnx)(model)
+        state = (model.layers, 2, model.hidden)
+        inputs += [f"{name}_in" for name in model.states]
+        outputs += [f"{name}_out" for name in model.states]
+        example += tuple(torch.zeros(state) for _ in model.states)
+        shapes += [{1: ...} for _ in model.states]
+        description["recurrent"] = {
+            "kind": model.kind,
+            "inputs": inputs[1:],
+            "outputs": outputs[1:],
+            "shape": ["layers", "batch", "hidden"],
+            "layers": model.layers,
+            "hidden": model.hidden,
+            "content": "the recurrent layer's state: feed zeros at an episode's start, then "
+            "each step the outputs of the step before",
+        }
+        description["files"]["torchscript"] = (
+            "policy.pt (one env: it keeps the state itself; call reset() at an episode's start)"
+        )
     batch = torch.export.Dim("batch", min=1)
+    shapes = tuple({axis: batch for axis in shape} for shape in shapes)
     quiet = logging.getLogger("torch.onnx")
     level = quiet.level
     quiet.setLevel(logging.ERROR)  # "torchvision is not installed" notes
@@ -204,13 +258,13 @@ def export_policy(
             warnings.simplefilter("ignore", FutureWarning)  # torch.export's own deprecations
             program = torch.onnx.export(
                 model,
-                (torch.zeros(2, size),),
+                example,
                 dynamo=True,
                 external_data=False,
                 opset_version=OPSET,
-                input_names=["obs"],
-                output_names=["actions"],
-                dynamic_shapes=({0: batch},),
+                input_names=inputs,
+                output_names=outputs,
+                dynamic_shapes=shapes,
                 verbose=False,
             )
     finally:

@@ -16,6 +16,8 @@ Kinds, at difficulty d (maxima in :class:`TerrainLevels`):
 - ``steps``: stairs up then down along x, treads ``step_tread`` long, rise ``d * step_height``.
 - ``stones``: square stones ``stone_size`` wide at height 0 with gaps ``gap_depth`` deep and
   ``round(d * stone_gap / cell)`` samples wide (none below half a cell).
+- ``flat``: flat at every level (not in the default map: ``kinds=("flat", *DEFAULT_KINDS)``
+  keeps a fifth of the envs on flat ground, as mjlab's and legged_gym's maps keep some).
 
 :func:`build_model` puts a map into ``model/world_train.xml``'s heightfield, with map height 0
 at world z 0 and the map's centre at world (0, 0), so map coordinates are world x, y.
@@ -38,7 +40,10 @@ from rwalk.terrain import CORRELATION_LENGTH, generate_heightmap
 #: Most height samples of a map (the default map has 441 x 1001).
 MAX_MAP_SAMPLES = 1 << 24
 #: Every kind of tile, in the order that keys their random streams.
-KNOWN_KINDS: tuple[str, ...] = ("rough", "slopes", "steps", "stones")
+KNOWN_KINDS: tuple[str, ...] = ("rough", "slopes", "steps", "stones", "flat")
+#: The kinds of the default map (a ``flat`` kind adds flat tiles at every level: with the
+#: four others, a fifth of the envs walk on flat ground).
+DEFAULT_KINDS: tuple[str, ...] = ("rough", "slopes", "steps", "stones")
 
 
 @dataclass(frozen=True)
@@ -47,7 +52,7 @@ class TerrainLevels:
 
     levels: int = 10
     """Difficulty bands along y; level l has difficulty l / (levels - 1), level 0 flat."""
-    kinds: tuple[str, ...] = KNOWN_KINDS
+    kinds: tuple[str, ...] = DEFAULT_KINDS
     """Tiles along x, one per kind (from ``KNOWN_KINDS``); each env keeps one kind."""
     seed: int = 0
     """Map seed: a fresh seed gives a new map of the same difficulty."""
@@ -265,6 +270,8 @@ def tile_heights(cfg: TerrainLevels, level: int, kind: str) -> np.ndarray:
     elif kind == "steps":
         stair = np.floor(np.minimum(s, run - s) / cfg.step_tread)
         profile = np.broadcast_to(d * cfg.step_height * stair, (rows, cols))
+    elif kind == "flat":
+        profile = np.zeros((rows, cols))
     else:  # stones
         stone = max(1, round(cfg.stone_size / cfg.cell))
         gap = round(d * cfg.stone_gap / cfg.cell)
@@ -382,6 +389,7 @@ def update_levels(
 
 
 __all__ = [
+    "DEFAULT_KINDS",
     "KNOWN_KINDS",
     "TerrainLevels",
     "TerrainMap",

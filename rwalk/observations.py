@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from rwalk import mirror as mirrors
 from rwalk import rng
 from rwalk.constants import (
     OBS_ANGVEL,
@@ -37,6 +38,7 @@ from rwalk.constants import (
     OBS_POS,
     OBS_QUAT,
 )
+from rwalk.mirror import Mirror
 from rwalk.randomization import PHYSICS_PARAMS
 from rwalk.terrain import Terrain
 
@@ -132,6 +134,10 @@ class ObsPiece(NamedTuple):
     """Half-width of the uniform noise on each value when the config has observation
     noise: a number, a function of the ``ObservationNoise`` config giving a number or
     one per value (Shape: (size,)), or None (never noisy)."""
+    mirror: Mirror | None = None
+    """The piece of the robot's left-right mirrored state (``rwalk.mirror``), for
+    symmetry augmentation; None: the piece has none declared (a run that mirrors refuses
+    it, naming it)."""
 
 
 #: Ground samples around each foot for the privileged pieces, in world axes: under the
@@ -174,24 +180,33 @@ def _lateral_offset(s: Sources) -> Tensor:
     return (s.sensors[:, OBS_POS.start + 1] - s.episodes.y0).unsqueeze(-1)
 
 
+#: Where each sample of HEIGHT_OFFSETS lands in the mirrored state (+y <-> -y).
+HEIGHT_MIRROR = (0, 1, 2, 4, 3)
+
 #: Pieces every task has. ``sensors`` is the spec's 65-D observation.
 COMMON_PIECES: dict[str, ObsPiece] = {
     "sensors": ObsPiece(OBS_DIM, lambda s: s.sensors,
                         "the spec's 65 values: torso, joints, feet, contacts",
-                        noise=ObservationNoise.sensor_scales),
-    "phase": ObsPiece(2, lambda s: s.task.phase_features(), "sin, cos of 2π x the gait phase"),
+                        noise=ObservationNoise.sensor_scales, mirror=mirrors.SENSORS),
+    "phase": ObsPiece(2, lambda s: s.task.phase_features(), "sin, cos of 2π x the gait phase",
+                      mirror=mirrors.PHASE),
     "lateral_offset": ObsPiece(1, _lateral_offset,
                                "torso y - y0, the drift the lateral term sees (m)",
-                               noise=lambda cfg: cfg.lateral_offset),
+                               noise=lambda cfg: cfg.lateral_offset, mirror=mirrors.signed((-1,))),
     "command": ObsPiece(1, lambda s: s.task.target.unsqueeze(-1),
-                        "the episode's target velocity (m/s; config.command_range)"),
+                        "the episode's target velocity (m/s; config.command_range)",
+                        mirror=mirrors.identity(1)),
+    "cycle_speed": ObsPiece(1, lambda s: s.episodes.cycle_speed().unsqueeze(-1),
+                            "the torso's forward speed averaged over the last gait cycle (m/s)",
+                            noise=lambda cfg: cfg.torso_linvel / 4, mirror=mirrors.identity(1)),
     "physics": ObsPiece(len(PHYSICS_PARAMS), lambda s: s.physics.normalised_params(),
                         "privileged: the env's randomised physics, centred and scaled "
-                        "(rwalk.randomization)"),
+                        "(rwalk.randomization)",
+                        mirror=mirrors.signed([p.mirror for p in PHYSICS_PARAMS])),
     "heights": ObsPiece(4 * len(HEIGHT_OFFSETS),
                         lambda s: foot_clearances(s.sensors, s.terrain),
                         "privileged: each foot's height above the ground under it and 3 cm "
-                        "around it (m)"),
+                        "around it (m)", mirror=mirrors.per_leg_with_samples(HEIGHT_MIRROR)),
 }  # fmt: skip
 
 
@@ -319,6 +334,19 @@ class Observations:
     def state(self) -> dict[str, Tensor]:
         """Per-env tensors to keep when the core is pickled."""
         return {"steps": self.steps}
+
+    def mirror(self, name: str) -> Mirror:
+        """The left-right mirror of the piece ``name`` (``rwalk.mirror``).
+
+        Raises:
+            ValueError: naming the piece, if it declares none.
+        """
+        if name in COMPOSITE:
+            return mirrors.concat(self.mirror(part) for part in self.observation)
+        declared = self._piece(name).mirror
+        if declared is None:
+            raise ValueError(f"observation piece {name!r} declares no mirror (ObsPiece.mirror)")
+        return declared
 
     def scales(self, name: str) -> Tensor | None:
         """Noise half-width of each value of the piece ``name`` under the config's

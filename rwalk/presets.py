@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 from rwalk.cli import require_at_least, require_at_most, require_in
 from rwalk.config import MAX_ENVS, MAX_SETTLE_STEPS, MAX_SPEED, MAX_STEPS, EnvConfig
-from rwalk.levels import TerrainLevels
+from rwalk.levels import DEFAULT_KINDS, TerrainLevels
 from rwalk.observations import ObservationNoise
 from rwalk.perturbations import Pushes
 from rwalk.randomization import Randomization
@@ -46,6 +46,7 @@ def training_config(
     command_range: tuple[float, float] | None = None,
     start_spread: float = 0.5,
     robust: bool = False,
+    levels: TerrainLevels | None = None,
 ) -> EnvConfig:
     """The training env: pooled settling and starts spread; for adaptive_gait,
     starting parameters spread by ``start_spread`` (see ``AdaptiveGaitConfig.start_spread``).
@@ -59,6 +60,8 @@ def training_config(
     extra = {"start_spread": start_spread} if "start_spread" in kind.__dataclass_fields__ else {}
     if robust:
         extra |= robust_world() | {"position_noise": PAD_SPREAD}
+        if levels is not None:
+            extra["terrain_levels"] = levels
     else:
         extra |= {"terrain_scale": terrain_scale, "position_noise": START_SPREAD}
     return kind(
@@ -155,6 +158,14 @@ class TrainingEnv:
     start_spread: float = 0.5
     """adaptive_gait: episodes start from gait parameters spread by this fraction of each
     range (0: the starting gait; residual_walk ignores it)"""
+    terrain_kinds: tuple[str, ...] = dataclasses.field(
+        default=DEFAULT_KINDS, metadata={"item": str}
+    )
+    """the robust world's kinds of tile (rough, slopes, steps, stones, flat), one per fifth
+    or quarter of the envs"""
+    demote: float = 0.35
+    """the robust world's curriculum: an env that walked less than this fraction of the
+    expected distance (or fell) goes a level down"""
 
     def __post_init__(self) -> None:
         require_at_least(self, 1, "num_envs", "settle_reuse", "max_episode_steps")
@@ -166,6 +177,11 @@ class TrainingEnv:
         require_in(self, "terrain_scale", 0.0, 1.0)
         require_in(self, "settle_pool_fraction", 0.0, 1.0, low_open=True)
         get_task(self.task)  # ValueError listing the known tasks
+        require_in(self, "demote", 0.0, TerrainLevels.promote)
+        try:
+            TerrainLevels(kinds=self.terrain_kinds)
+        except ValueError as error:
+            raise ValueError(f"--terrain-kinds: {error}") from None
         if self.command_range and (
             len(self.command_range) != 2 or not self.command_range[0] <= self.command_range[1]
         ):
@@ -195,4 +211,5 @@ class TrainingEnv:
             threads=threads,
             command_range=self.commands,
             start_spread=self.start_spread,
+            levels=TerrainLevels(kinds=self.terrain_kinds, demote=self.demote),
         )

@@ -94,6 +94,9 @@ class PhysicsParam:
     above: bool = False
     """The range's values must be strictly above ``minimum``."""
     doc: str = ""
+    mirror: float = 1.0
+    """-1 for a quantity that changes sign in the robot's left-right mirror (a shift
+    along y); the physics piece mirrors with it."""
 
 
 #: The randomised physics, in the order of the draws and of the ``physics`` piece.
@@ -110,7 +113,7 @@ PHYSICS_PARAMS: tuple[PhysicsParam, ...] = (
                  doc="Shift of the torso's centre of mass along x and along y (each "
                      "drawn). Metres."),
     PhysicsParam("com_y", "com_offset", (-0.01, 0.01), 0.0, 0.0, 0.01, "add",
-                 (Target("body_ipos", _torso(1)),)),
+                 (Target("body_ipos", _torso(1)),), mirror=-1.0),
     PhysicsParam("kp_scale", "kp_scale", (0.85, 1.15), 1.0, 1.0, 0.15, "scale",
                  (Target("actuator_gainprm", _servos(0)), Target("actuator_biasprm", _servos(1))),
                  minimum=0.0, above=True,

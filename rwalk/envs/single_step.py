@@ -94,6 +94,9 @@ class SingleStep:
          self._speed_error) = (t.numpy() for t in self._tensors[:7])  # fmt: skip
         self._obs = obs[0]
         self._sums = {name: total.numpy() for name, total in core.episode_sums.items()}
+        episodes = core.episodes
+        self._recent, self._recent_sum = episodes.recent.numpy()[0], episodes.recent_sum.numpy()
+        self._slot = episodes.slot.numpy()
 
     def step(self, action: np.ndarray) -> SingleStepResult:
         """Advance the env by one control period, like ``core.step(action[None])``.
@@ -160,6 +163,10 @@ class SingleStep:
             self._sums[name][0] += term
         self._distance[0] += forward_velocity * core.control_dt
         self._speed_error[0] += abs(forward_velocity - cfg.expected_velocity)
+        slot = int(self._slot)  # the last cycle's velocities, as Episodes.record keeps them
+        self._recent_sum[0] += forward_velocity - self._recent[slot]
+        self._recent[slot] = forward_velocity
+        self._slot[...] = (slot + 1) % self._recent.size
         return SingleStepResult(
             obs, reward, terms, terminated, truncated, diverged,
             phase=float(next_tick) / period, lateral_offset=values[1] - y0,

@@ -234,14 +234,16 @@ def checked_iteration(loaded: dict[str, Any], key: str, path: str | os.PathLike[
 
 
 def check_rsl_rl(loaded: dict[str, Any], path: str | os.PathLike[str]) -> dict[str, Any]:
-    """``loaded`` (from ``load_checkpoint(path)``) if it is an rsl-rl save from rwalk-train:
-    written by that trainer, with an iteration and the model states as dicts of tensors.
+    """``loaded`` (from ``load_checkpoint(path)``) if it is an rsl-rl save from rwalk-train
+    (PPO's actor and critic, or a distillation's student and teacher): written by that
+    trainer, with an iteration and the model states as dicts of tensors.
 
     Raises:
         CheckpointError: naming the path and the field.
     """
     require_trainer(loaded, path, TRAINER, "rsl-rl (rwalk-train)")
-    missing = [key for key in ("iter", "actor_state_dict") if key not in loaded]
+    model = "student_state_dict" if "student_state_dict" in loaded else "actor_state_dict"
+    missing = [key for key in ("iter", model) if key not in loaded]
     if missing:
         raise CheckpointError(f"checkpoint {str(path)!r} lacks {missing}: not an rsl-rl save")
     checked_iteration(loaded, "iter", path)

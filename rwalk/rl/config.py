@@ -38,6 +38,8 @@ from rwalk.rng import SEED_LIMIT
 from rwalk.tasks.base import Task
 from rwalk.tasks.registry import get_task
 
+#: The actor's (or student's) models: an MLP, or a recurrent layer before the MLP.
+ACTORS = ("mlp", "gru", "lstm")
 #: Most iterations of a run, and most of the counts per iteration.
 MAX_ITERATIONS = 10**9
 #: Most layers, and most units in a layer, of the actor's and the critic's MLPs.
@@ -129,8 +131,41 @@ class TrainConfig:
     policy_obs: tuple[str, ...] = field(default=(), metadata={"item": str})
     """observation pieces the policy sees (none: the observation, phase, lateral_offset and
     the task's command)"""
+    actor: str = "mlp"
+    """the actor's (a student's) model: mlp, or a recurrent gru or lstm before the MLP layers
+    (PPO then trains on whole trajectories; the critic is of the same kind)"""
+    rnn_hidden_dim: int = 128
+    """--actor gru/lstm: units of the recurrent layer"""
+    teacher: bool = False
+    """train a teacher: the actor also reads the privileged pieces (the drawn physics, the
+    ground around the feet), which only a simulation has; distil it with --distill"""
+    distill: str = ""
+    """train a blind student against this frozen teacher checkpoint (rwalk-train --teacher)
+    with rsl-rl's Distillation: the student reads the policy's pieces (with their noise)"""
+    gradient_length: int = 15
+    """--distill: steps whose losses add up before each gradient step (a recurrent student
+    learns through them)"""
+    symmetry: bool = False
+    """augment PPO's minibatches with the left-right mirrored states and actions
+    (rsl-rl's symmetry augmentation; an MLP actor only)"""
 
     def __post_init__(self) -> None:
+        if self.actor not in ACTORS:
+            raise ValueError(f"--actor must be one of {', '.join(ACTORS)}, got {self.actor!r}")
+        require_at_least(self, 1, "rnn_hidden_dim", "gradient_length")
+        require_at_most(self, MAX_WIDTH, "rnn_hidden_dim")
+        require_at_most(self, MAX_ITERATIONS, "gradient_length")
+        if self.symmetry and self.actor != "mlp":
+            raise ValueError(
+                f"--symmetry needs --actor mlp (rsl-rl's symmetry augmentation refuses "
+                f"recurrent models), got --actor {self.actor}"
+            )
+        if self.symmetry and self.distill:
+            raise ValueError("--symmetry and --distill do not go together (rsl-rl's "
+                             "Distillation refuses the symmetry extension)")  # fmt: skip
+        if self.teacher and self.distill:
+            raise ValueError("--teacher and --distill do not go together: a teacher is "
+                             "trained with PPO, then distilled into a student")  # fmt: skip
         require_at_least(self, 1, "num_steps_per_env", "num_learning_epochs", "num_mini_batches")
         require_at_most(self, MAX_ITERATIONS, "num_steps_per_env", "num_learning_epochs",
                         "num_mini_batches")  # fmt: skip
@@ -147,62 +182,102 @@ class TrainConfig:
                 f"units, got {self.hidden_dims}"
             )
 
-    def to_rsl_rl(self, save_interval: int) -> dict[str, Any]:
-        """rsl-rl-lib 5.x's training config (a fresh dict: its PPO pops keys from it)."""
-        mlp = {"class_name": "MLPModel", "hidden_dims": list(self.hidden_dims), "activation": "elu"}
-        return {
-            "num_steps_per_env": self.num_steps_per_env,
-            "save_interval": save_interval,
-            "obs_groups": {"actor": ["policy"], "critic": ["critic"]},
-            "algorithm": {
-                "class_name": "PPO",
-                "learning_rate": self.learning_rate,
-                "entropy_coef": self.entropy_coef,
-                "num_learning_epochs": self.num_learning_epochs,
-                "num_mini_batches": self.num_mini_batches,
-                "gamma": self.gamma,
-                "lam": self.lam,
-                "schedule": "adaptive",
-                "desired_kl": self.desired_kl,
-                "clip_param": self.clip_param,
-                "value_loss_coef": 1.0,
-                "use_clipped_value_loss": False,
-                "max_grad_norm": self.max_grad_norm,
-            },
-            "actor": {
-                **mlp,
-                "obs_normalization": True,
-                "distribution_cfg": {
-                    "class_name": "GaussianDistribution",
-                    "init_std": self.init_noise_std,
+    def model(self, output_std: bool = True) -> dict[str, Any]:
+        """rsl-rl's config of this run's actor (a student's) model; ``output_std``: with its
+        Gaussian output (a stochastic policy)."""
+        model: dict[str, Any] = {
+            "class_name": "MLPModel" if self.actor == "mlp" else "RNNModel",
+            "hidden_dims": list(self.hidden_dims),
+            "activation": "elu",
+            "obs_normalization": True,
+        }
+        if self.actor != "mlp":
+            model |= {"rnn_type": self.actor, "rnn_hidden_dim": self.rnn_hidden_dim,
+                      "rnn_num_layers": 1}  # fmt: skip
+        if output_std:
+            model["distribution_cfg"] = {
+                "class_name": "GaussianDistribution",
+                "init_std": self.init_noise_std,
+            }
+        return model
+
+    def to_rsl_rl(self, save_interval: int, teacher: TrainConfig | None = None) -> dict[str, Any]:
+        """rsl-rl-lib 5.x's training config (a fresh dict: its algorithms pop keys from it):
+        PPO, or with ``teacher`` (the teacher run's config) Distillation into this run's
+        actor as the student."""
+        common = {"num_steps_per_env": self.num_steps_per_env, "save_interval": save_interval}
+        if teacher is not None:
+            return common | {
+                "obs_groups": {"student": ["policy"], "teacher": ["teacher"]},
+                "algorithm": {
+                    "class_name": "Distillation",
+                    "num_learning_epochs": self.num_learning_epochs,
+                    "gradient_length": self.gradient_length,
+                    "learning_rate": self.learning_rate,
+                    "max_grad_norm": self.max_grad_norm,
+                    "loss_type": "mse",
                 },
-            },
-            "critic": {**mlp, "obs_normalization": True},
+                "student": self.model(),
+                "teacher": teacher.model(),
+            }
+        algorithm = {
+            "class_name": "PPO",
+            "learning_rate": self.learning_rate,
+            "entropy_coef": self.entropy_coef,
+            "num_learning_epochs": self.num_learning_epochs,
+            "num_mini_batches": self.num_mini_batches,
+            "gamma": self.gamma,
+            "lam": self.lam,
+            "schedule": "adaptive",
+            "desired_kl": self.desired_kl,
+            "clip_param": self.clip_param,
+            "value_loss_coef": 1.0,
+            "use_clipped_value_loss": False,
+            "max_grad_norm": self.max_grad_norm,
+        }
+        if self.symmetry:
+            algorithm["symmetry_cfg"] = {
+                "use_data_augmentation": True,
+                "use_mirror_loss": False,
+                "data_augmentation_func": "rwalk.rl.symmetry:augment",
+            }
+        return common | {
+            "obs_groups": {"actor": ["policy"], "critic": ["critic"]},
+            "algorithm": algorithm,
+            "actor": self.model(),
+            "critic": self.model(output_std=False),
         }
 
 
 def observation_groups(
-    task: Task, env: TrainingEnv, policy_obs: tuple[str, ...] = ()
+    task: Task, env: TrainingEnv, train: TrainConfig | None = None
 ) -> dict[str, tuple[str, ...]]:
     """The pieces of the policy and the critic of a training (the one rule).
 
-    The policy reads ``policy_obs``, else the spec observation and the task's extra
-    pieces (a robust run's observation counts the torso's x, y from the episode's
+    The policy reads ``train.policy_obs``, else the spec observation and the task's
+    extra pieces (a robust run's observation counts the torso's x, y from the episode's
     start: on the terrain-levels map, where it is would tell its level; the piece
-    ``command`` only when the envs draw commands). The critic reads the policy's
-    pieces, plus the privileged ones (the drawn physics, the ground around the feet)
-    when the training's world varies.
+    ``command`` only when the envs draw commands); a teacher's (``train.teacher``) also
+    reads the privileged pieces. The critic reads the policy's pieces, plus the
+    privileged ones (the drawn physics, the ground around the feet) when the training's
+    world varies.
 
     Args:
         task: the task of the envs the groups are read from (its ``extras`` decide the
             default pieces).
         env: the training's envs.
+        train: the training's config (None: the defaults).
     """
+    train = train or TrainConfig()
+    policy_obs = train.policy_obs
     if not policy_obs:
         observation = "observation_from_start" if env.robust else "observation"
         extras = [name for name in task.extras() if name != "command" or env.command_range]
         policy_obs = (observation, *extras)
-    critic = (*policy_obs, *(PRIVILEGED_PIECES if env.robust else ()))
+    privileged = PRIVILEGED_PIECES if env.robust or train.teacher else ()
+    if train.teacher:
+        policy_obs = (*policy_obs, *(name for name in privileged if name not in policy_obs))
+    critic = (*policy_obs, *(name for name in privileged if name not in policy_obs))
     return {"policy": tuple(policy_obs), "critic": critic}
 
 

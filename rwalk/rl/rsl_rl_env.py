@@ -9,7 +9,13 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from rwalk import episodes
+from rwalk import mirror as mirrors
 from rwalk.envs.torchrl_env import BatchedEnv
+from rwalk.mirror import Mirror
+
+#: Groups read with observation noise: the policy's, and a teacher's (it acts on what the
+#: student senses, as it did in its own training).
+NOISY_GROUPS = ("policy", "teacher")
 
 
 class RslRlVecEnv(VecEnv):
@@ -23,8 +29,9 @@ class RslRlVecEnv(VecEnv):
     (``command``, ``gait``, ``sensors``, ``physics``, ``heights``). None takes the
     observation and every extra piece of the task, and for the critic also the
     task's privileged pieces (``Task.privileged``: the randomised physics and the
-    ground around the feet, when the config varies the world). The policy group
-    carries ``EnvConfig.observation_noise``; the critic's is exact.
+    ground around the feet, when the config varies the world). A distillation adds
+    the group ``teacher`` (the frozen teacher's pieces). The policy and teacher groups
+    carry ``EnvConfig.observation_noise`` (the same draw); the critic's is exact.
 
     ``extras["log"]`` (means over the episodes that ended this step):
     ``Episode_Reward/<term>`` (per-step mean of each reward term),
@@ -48,17 +55,20 @@ class RslRlVecEnv(VecEnv):
         policy_obs: tuple[str, ...] | None = None,
         critic_obs: tuple[str, ...] | None = None,
         reward_scale: float = 1.0,
+        teacher_obs: tuple[str, ...] = (),
     ) -> None:
         every = ("observation", *env.core.task.extras())
         policy_obs = every if policy_obs is None else policy_obs
         critic_obs = (*every, *env.core.task.privileged()) if critic_obs is None else critic_obs
-        for name in (*policy_obs, *critic_obs):
+        for name in (*policy_obs, *critic_obs, *teacher_obs):
             env.core.piece_size(name)  # raises ValueError naming an unknown piece
         if not reward_scale > 0:
             raise ValueError(f"reward_scale must be > 0, got {reward_scale!r}")
         self.env = env
         self.core = env.core
-        self.groups = {"policy": tuple(policy_obs), "critic": tuple(critic_obs)}
+        groups = {"policy": policy_obs, "critic": critic_obs, "teacher": teacher_obs}
+        self.groups = {name: tuple(pieces) for name, pieces in groups.items() if pieces}
+        """The pieces of each observation group (an empty group is left out)."""
         self.reward_scale = float(reward_scale)
         self.num_envs = env.num_envs
         self.num_actions = env.action_spec.shape[-1]
@@ -81,11 +91,12 @@ class RslRlVecEnv(VecEnv):
     def get_observations(self) -> TensorDict:
         core = self.core
         pieces = {name: core.piece(name) for names in self.groups.values() for name in names}
-        noisy = core.observations.noisy
+        noisy = core.observations.noisy  # the same noise for every read within one step
         groups = {
-            "policy": [noisy(name, pieces[name]) for name in self.groups["policy"]],
-            "critic": [pieces[name] for name in self.groups["critic"]],
-        }
+            group: [noisy(name, pieces[name]) if group in NOISY_GROUPS else pieces[name]
+                    for name in names]
+            for group, names in self.groups.items()
+        }  # fmt: skip
         return TensorDict(
             {group: torch.cat(parts, dim=-1).to(torch.float32) for group, parts in groups.items()},
             batch_size=[self.num_envs],
@@ -119,6 +130,23 @@ class RslRlVecEnv(VecEnv):
         log["Episode/diverged"] = stats["diverged"].double().mean()
         log["Perf/settle_share"] = torch.tensor(self.core.settle_share)
         return log | self.core.curriculum.log()
+
+    # ------------------------------------------------------------ symmetry
+    def mirror(self, group: str) -> Mirror:
+        """The left-right mirror of an observation group: its pieces' (``rwalk.mirror``).
+
+        Raises:
+            ValueError: naming a piece that declares none.
+        """
+        return mirrors.concat(self.core.observations.mirror(name) for name in self.groups[group])
+
+    def action_mirror(self) -> Mirror:
+        """The left-right mirror of an action (the task's).
+
+        Raises:
+            ValueError: naming the task, if it declares none.
+        """
+        return self.core.task.action_mirror()
 
     # ------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, torch.Tensor]:

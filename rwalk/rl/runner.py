@@ -12,7 +12,7 @@ on CPU processes (``rwalk.rl.distributed``).
 
 from __future__ import annotations
 
-from rsl_rl.runners import OnPolicyRunner
+from rsl_rl.runners import DistillationRunner, OnPolicyRunner
 
 from rwalk.rl import distributed
 from rwalk.rl.checkpoints import (
@@ -25,10 +25,10 @@ from rwalk.rl.checkpoints import (
 )
 
 
-class SafeRunner(OnPolicyRunner):
-    """rsl-rl's ``OnPolicyRunner`` whose checkpoints are written atomically and read as data,
-    carry the env's state, and whose data-parallel training runs on CPU processes (gloo)
-    under torchrun.
+class SafeRunnerMixin:
+    """What rwalk adds to an rsl-rl runner: checkpoints written atomically and read as
+    data, the env's state beside the policy, and data-parallel training on CPU processes
+    (gloo) under torchrun.
 
     Checkpoints carry ``"trainer": "rsl_rl"`` and ``"env_state"`` (rsl-rl's ``alg.load``
     ignores keys it does not know).
@@ -82,8 +82,10 @@ class SafeRunner(OnPolicyRunner):
         strict: bool = True,
         map_location: str | None = None,
         data: bytes | None = None,
+        env_state: bool = True,
     ) -> dict | None:
-        """Load the state ``path`` holds (``data``: its bytes, read by rank 0).
+        """Load the state ``path`` holds (``data``: its bytes, read by rank 0); with
+        ``env_state``, the env's too (the curriculum).
 
         Raises:
             FileNotFoundError: naming the file.
@@ -100,17 +102,27 @@ class SafeRunner(OnPolicyRunner):
             ) from None
         if resumed:
             self.current_learning_iteration = loaded["iter"]
-        env_state = loaded.get("env_state")
-        if env_state is None and "terrain_level" in loaded:  # saves from before the hook
-            env_state = {"terrain_level": loaded["terrain_level"]}
+        saved_env = loaded.get("env_state")
+        if saved_env is None and "terrain_level" in loaded:  # saves from before the hook
+            saved_env = {"terrain_level": loaded["terrain_level"]}
         load_state_dict = getattr(self.env, "load_state_dict", None)
-        if load_state_dict is not None and env_state:
-            if not isinstance(env_state, dict):
+        if env_state and load_state_dict is not None and saved_env:
+            if not isinstance(saved_env, dict):
                 raise CheckpointError(f"checkpoint {str(path)!r}: 'env_state' must be a dict")
             try:
-                why = load_state_dict(env_state)
+                why = load_state_dict(saved_env)
             except ValueError as error:
                 raise CheckpointError(f"checkpoint {str(path)!r}: env_state: {error}") from None
             if why:
                 print(f"[rwalk] {path}: {why}")
         return None
+
+
+class SafeRunner(SafeRunnerMixin, OnPolicyRunner):
+    """rsl-rl's ``OnPolicyRunner`` (PPO) with ``SafeRunnerMixin``'s checkpoints and groups."""
+
+
+class SafeDistillationRunner(SafeRunnerMixin, DistillationRunner):
+    """rsl-rl's ``DistillationRunner`` with ``SafeRunnerMixin``'s checkpoints and groups:
+    ``load(teacher_checkpoint)`` loads a teacher (its actor), a distillation checkpoint
+    the student, the teacher and the optimizer."""

@@ -19,13 +19,13 @@ import json
 import os
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import mujoco
 import numpy as np
 import torch
 
-from rwalk.cli import flag
+from rwalk.cli import flag, show_flag
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.export import export_policy
 from rwalk.progress import Progress
@@ -49,7 +49,7 @@ from rwalk.rl.config import (
     restore_run,
 )
 from rwalk.rl.rsl_rl_env import RslRlVecEnv
-from rwalk.rl.runner import SafeRunner
+from rwalk.rl.runner import SafeDistillationRunner, SafeRunner
 from rwalk.starts import SettleError
 
 PER_RANK_FLAGS = ("threads",)
@@ -60,21 +60,83 @@ SETUP_ERRORS = (CheckpointError, ConfigError, FileNotFoundError, ResumeConflict,
 errors reach every rank (same message)."""
 
 
-def make_env(args) -> RslRlVecEnv:
-    """The training's envs for rsl-rl, with the policy and critic groups of the one rule
-    (``rwalk.rl.config.observation_groups``)."""
+class Teacher(NamedTuple):
+    """The frozen teacher of a distillation (--distill)."""
+
+    path: Path
+    args: Any
+    """Its run's flags (``TrainArgs``)."""
+
+
+def make_env(args, teacher: Teacher | None = None) -> RslRlVecEnv:
+    """The training's envs for rsl-rl, with the groups of the one rule
+    (``rwalk.rl.config.observation_groups``): the policy's and the critic's, or for a
+    distillation the student's (``policy``) and the teacher's."""
     vec = BatchedEnv(args.num_envs, args.env.config(args.threads), seed=args.seed, task=args.task)
     vec.core.settle_progress = Progress("settling starts", "physics steps")
-    groups = observation_groups(vec.core.task, args.env, args.policy_obs)
-    return RslRlVecEnv(
-        vec, policy_obs=groups["policy"], critic_obs=groups["critic"],
-        reward_scale=args.reward_scale,
-    )  # fmt: skip
+    groups = observation_groups(vec.core.task, args.env, args.train)
+    if teacher is not None:  # the teacher acts on its own policy group
+        teacher_obs = observation_groups(vec.core.task, teacher.args.env, teacher.args.train)
+        env = RslRlVecEnv(
+            vec,
+            policy_obs=groups["policy"],
+            critic_obs=(),
+            reward_scale=args.reward_scale,
+            teacher_obs=teacher_obs["policy"],
+        )
+    else:
+        env = RslRlVecEnv(
+            vec,
+            policy_obs=groups["policy"],
+            critic_obs=groups["critic"],
+            reward_scale=args.reward_scale,
+        )
+    if args.symmetry:  # every piece of every group mirrors (ValueError naming one that does not)
+        for group in env.groups:
+            env.mirror(group)
+        env.action_mirror()
+    return env
 
 
-def rsl_rl_config(args) -> dict[str, Any]:
-    """rsl-rl-lib 5.x's training config of ``args`` (a fresh dict)."""
-    return args.train.to_rsl_rl(args.save_interval)
+def rsl_rl_config(args, teacher: Teacher | None = None) -> dict[str, Any]:
+    """rsl-rl-lib 5.x's training config of ``args`` (a fresh dict): PPO, or a distillation
+    of ``teacher``."""
+    return args.train.to_rsl_rl(args.save_interval, teacher and teacher.args.train)
+
+
+def teacher_of(args) -> Teacher | None:
+    """The teacher --distill names, checked against this run: an rsl-rl PPO checkpoint of
+    a run trained with --teacher, of this task and world.
+
+    Raises:
+        FileNotFoundError, CheckpointError, ConfigError: naming the file.
+        RunSetupError: naming the flag and both values, for a checkpoint that is no teacher
+            of this run (a student, no --teacher, another task, world or commands).
+    """
+    if not args.distill:
+        return None
+    path = Path(args.distill)
+    state = check_rsl_rl(load_checkpoint(path), path)
+    if "actor_state_dict" not in state:
+        raise RunSetupError(f"--distill {path}: a distilled student, not a teacher trained "
+                            "with --teacher")  # fmt: skip
+    config = path.parent / "config.json"
+    if not config.is_file():
+        raise FileNotFoundError(f"--distill {path}: its run's config.json is not beside it")
+    teacher = load_saved_args(config)
+    if not teacher.teacher:
+        raise RunSetupError(
+            f"--distill {path}: its run trained without --teacher, so its actor reads no "
+            "privileged pieces; train a teacher with rwalk-train --teacher"
+        )
+    for name in ("task", "robust", "command_range"):
+        if getattr(teacher, name) != getattr(args, name):
+            raise RunSetupError(
+                f"--distill {path}: its teacher trained with "
+                f"{show_flag(name, getattr(teacher, name))}, this student with "
+                f"{show_flag(name, getattr(args, name))}: a teacher teaches its own task and world"
+            )
+    return Teacher(path, teacher)
 
 
 def start_as_base_gait(runner) -> None:
@@ -178,15 +240,31 @@ def train(args, given: frozenset[str] | None = None) -> Path:
         distributed.leave()
 
 
-def _claim_run(args, given, group: distributed.Group, stack: contextlib.ExitStack):
-    """Rank 0 checks --resume, takes the run folder's lock (held until ``stack`` closes) and
-    claims the folder; every rank gets the resume point (rank 0's) or rank 0's error, the
-    flags to train on (the resumed run's, rank 0's), and the checkpoint's bytes (None for
-    one process: it reads the file itself)."""
-    resume, failure = None, None
+class Setup(NamedTuple):
+    """What a run starts from, as rank 0 found it."""
+
+    args: Any
+    """The flags to train on (the resumed run's own, for --resume)."""
+    resume: tuple[Path, int] | None
+    """The checkpoint to go on from and its iteration."""
+    resume_data: bytes | None
+    """Its bytes, read by rank 0 (None in a single process: it reads the file itself)."""
+    teacher: Teacher | None
+    """The teacher of a distillation."""
+    teacher_data: bytes | None
+    """Its checkpoint's bytes, read by rank 0 (None in a single process)."""
+
+
+def _claim_run(args, given, group: distributed.Group, stack: contextlib.ExitStack) -> Setup:
+    """Rank 0 checks --resume and --distill, takes the run folder's lock (held until
+    ``stack`` closes) and claims the folder; every rank gets rank 0's setup, or its error."""
+    resume, teacher, failure = None, None, None
     if group.main:
         try:
             resume = resume_point(args, given)
+            if resume is not None:
+                args = resume[2]
+            teacher = teacher_of(args)
             log_dir = Path(args.log_dir)
             stack.enter_context(run_lock(log_dir))
             claim_log_dir(log_dir, resume and resume[:2],
@@ -196,20 +274,33 @@ def _claim_run(args, given, group: distributed.Group, stack: contextlib.ExitStac
             failure = error
     distributed.raise_if_failed(group, failure, SETUP_ERRORS)
     if not group.distributed:
-        return (resume[:2], resume[2], None) if resume else (None, args, None)
-    sent = resume and [str(resume[0]), resume[1], dataclasses.asdict(resume[2])]
-    shared = distributed.broadcast_json(group, sent)
-    if shared is None:
-        return None, args, None
-    data = distributed.broadcast_bytes(group, resume[0].read_bytes() if resume else None)
-    return (Path(shared[0]), int(shared[1])), type(args).from_saved(shared[2]), data
+        return Setup(args, resume and resume[:2], None, teacher, None)
+    sent = {
+        "args": dataclasses.asdict(args),
+        "resume": resume and [str(resume[0]), resume[1]],
+        "teacher": teacher and [str(teacher.path), dataclasses.asdict(teacher.args)],
+    }
+    shared = distributed.broadcast_json(group, sent if group.main else None)
+    files = []
+    for found, key in ((resume, "resume"), (teacher, "teacher")):
+        data = found[0].read_bytes() if group.main and found else None
+        files.append(distributed.broadcast_bytes(group, data) if shared[key] else None)
+    return Setup(
+        type(args).from_saved(shared["args"]),
+        shared["resume"] and (Path(shared["resume"][0]), int(shared["resume"][1])),
+        files[0],
+        shared["teacher"] and Teacher(Path(shared["teacher"][0]),
+                                      type(args).from_saved(shared["teacher"][1])),
+        files[1],
+    )  # fmt: skip
 
 
 def _train(args, given, group: distributed.Group, clock: float) -> Path:
     say = print if group.main else lambda *_, **__: None  # rank 0 speaks for the group
     log_dir = Path(args.log_dir)
     with contextlib.ExitStack() as stack:  # rank 0 holds the lock until the run ends
-        resume, args, data = _claim_run(args, given, group, stack)
+        setup = _claim_run(args, given, group, stack)
+        args, resume, teacher = setup.args, setup.resume, setup.teacher
         mine = rank_args(args, group)
         torch.manual_seed(args.seed + group.rank)
         if mine.threads:  # the process's share of the cores, for learning too
@@ -221,18 +312,21 @@ def _train(args, given, group: distributed.Group, clock: float) -> Path:
                 flush=True,
             )
         say(f"building {args.num_envs} envs (settling their starts) ...", flush=True)
-        env = make_env(mine)
+        env = make_env(mine, teacher)
         say(f"  ready in {time.perf_counter() - clock:.1f} s", flush=True)
-        runner = SafeRunner(
-            env, rsl_rl_config(args), log_dir=str(log_dir) if group.main else None, device="cpu"
-        )
+        runner_class = SafeDistillationRunner if teacher else SafeRunner
+        writes = str(log_dir) if group.main else None
+        runner = runner_class(env, rsl_rl_config(args, teacher), log_dir=writes, device="cpu")
         hashes = os.environ.get(distributed.PARAMETER_HASHES_ENV)
         if hashes:
             distributed.record_parameter_hashes(runner, hashes, group)
         if resume is None:
             start_as_base_gait(runner)  # learn() then broadcasts rank 0's parameters
+            if teacher is not None:  # its actor only: the student's curriculum is its own
+                runner.load(str(teacher.path), data=setup.teacher_data, env_state=False)
+                say(f"distilling the teacher {teacher.path}")
         else:  # every rank loads rank 0's file
-            runner.load(str(resume[0]), data=data)
+            runner.load(str(resume[0]), data=setup.resume_data)
             if env.core.terrain_map is not None:
                 env.core.reset()  # every env restarts on its level of the resumed curriculum
             runner.current_learning_iteration += 1  # continue after the saved iteration

@@ -37,9 +37,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from rwalk import mirror as mirrors
 from rwalk.config import EnvConfig
 from rwalk.constants import ACTION_DIM
 from rwalk.gait import BezierGaitController, GaitParameters, GaitShape, advance_phase
+from rwalk.mirror import Mirror
 from rwalk.observations import ObsPiece
 from rwalk.tasks.base import Task
 
@@ -197,8 +199,13 @@ class AdaptiveGait(Task):
             lambda s: (s.task.params - s.task.centre) / s.task.half_width,
             "step_height, step_length, cycle_time, body_height, each (v - centre) / half_width",
             noise=lambda cfg: cfg.gait,
+            mirror=mirrors.identity(len(ADAPTED)),
         )
         return pieces
+
+    @classmethod
+    def action_mirror(cls) -> Mirror:
+        return mirrors.concat((mirrors.identity(len(ADAPTED)), mirrors.RESIDUALS))
 
     def seed(self, seed: int) -> None:
         super().seed(seed)

@@ -22,6 +22,7 @@ from torch import Tensor
 
 from rwalk import rng
 from rwalk.config import EnvConfig
+from rwalk.mirror import Mirror
 from rwalk.observations import COMMON_PIECES, PRIVILEGED_PIECES, ObsPiece, piece_catalog
 from rwalk.rewards import RewardTerm, spec_terms
 from rwalk.world import World
@@ -86,6 +87,15 @@ class Task:
     def reward_terms(self) -> tuple[RewardTerm, ...]:
         """The reward's terms, in the order they are added and reported."""
         return spec_terms(self.config.reward_weights)
+
+    @classmethod
+    def action_mirror(cls) -> Mirror:
+        """The left-right mirror of an action (``rwalk.mirror``), for symmetry augmentation.
+
+        Raises:
+            ValueError: naming the task, if it declares none.
+        """
+        raise ValueError(f"task {cls.name!r} declares no action mirror (Task.action_mirror)")
 
     @property
     def observation_dim(self) -> int:

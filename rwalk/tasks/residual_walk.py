@@ -11,7 +11,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from rwalk import mirror
 from rwalk.constants import ACTION_DIM
+from rwalk.mirror import Mirror
 from rwalk.tasks.base import Task
 
 
@@ -28,6 +30,10 @@ class ResidualWalk(Task):
         self.tick = torch.zeros(num_envs, dtype=torch.long)
         """Physics substeps since gait phase 0, modulo the cycle, at the start of the
         next step. Shape: (N,)."""
+
+    @classmethod
+    def action_mirror(cls) -> Mirror:
+        return mirror.RESIDUALS
 
     def reset(self, rows: Tensor) -> None:
         self.tick[rows] = self.world.settled_tick
