@@ -137,7 +137,11 @@ def condition_config(
     """
     if name not in CONDITIONS:
         raise ValueError(f"unknown condition {name!r}; choose from {tuple(CONDITIONS)}")
-    base = presets.evaluation_config(max_steps=max_steps, settle_steps=settle_steps)
+    # Every episode's target is the gait's speed, offered as the piece ``command`` too: a
+    # policy trained with commands reads it, the others do not (the same episodes).
+    speed = EnvConfig().expected_velocity
+    base = presets.evaluation_config(max_steps=max_steps, settle_steps=settle_steps,
+                                     command_range=(speed, speed))  # fmt: skip
     return CONDITIONS[name][1](base, map_level)
 
 

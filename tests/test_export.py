@@ -151,7 +151,7 @@ def test_an_onnx_policy_runs_an_episode_of_the_gymnasium_env(exported, monkeypat
     _, _, onnx_path = exported
     text = (ROOT / "docs" / "environment.md").read_text()
     section = text.split("## Running an exported policy", 1)[1].split("\n## ", 1)[0]
-    (code,) = re.findall(r"```python\n(.*?)```", section, re.DOTALL)
+    code, _ = re.findall(r"```python\n(.*?)```", section, re.DOTALL)
     code = code.replace('"logs/rwalk/exported"', repr(str(onnx_path.parent)))
     code = code.replace("ResidualWalkEnv()", "ResidualWalkEnv(config=QUICK)")
     steps = []
@@ -202,3 +202,57 @@ def test_the_observation_from_the_start_reads_the_start_from_info():
     assert row[0] == np.float32(np.float64(obs[0]) - info["start_position"][0])
     with pytest.raises(KeyError, match="start_position"):
         policy_input(obs, {}, ("observation_from_start",))
+
+
+@pytest.fixture(scope="module")
+def recurrent(tmp_path_factory):
+    """A GRU policy of a robust run (it reads the observation from the episode's start),
+    its normaliser trained on the env's own observations, exported."""
+    torch.manual_seed(1)
+    args = dataclasses.replace(ARGS, robust=True, actor="gru", rnn_hidden_dim=16)
+    with contextlib.redirect_stdout(io.StringIO()):
+        runner = SafeRunner(make_env(args), rsl_rl_config(args), log_dir=None, device="cpu")
+    policy = runner.alg.get_policy()
+    policy.train()
+    policy.obs_normalizer.update(runner.env.get_observations()["policy"])
+    with torch.no_grad():  # an output that is not 0, so that the state shows
+        for parameter in policy.mlp.parameters():
+            parameter.add_(0.1 * torch.randn_like(parameter))
+    folder = tmp_path_factory.mktemp("gru") / "exported"
+    export_policy(runner, folder)
+    return runner, folder
+
+
+def test_a_recurrent_onnx_policy_carries_its_state(recurrent):
+    runner, folder = recurrent
+    layout = json.loads((folder / "policy.json").read_text())
+    state = layout["recurrent"]
+    assert state["kind"] == "gru" and state["inputs"] == ["h_in"] and state["hidden"] == 16
+    session = _session(folder / "policy.onnx")
+    assert [i.name for i in session.get_inputs()] == ["obs", "h_in"]
+    policy = runner.alg.get_policy().eval()
+    policy.reset()
+    env = runner.env
+    h = np.zeros((1, 3, 16), np.float32)  # three envs, zeros at the start
+    obs = env.get_observations()["policy"][:3]
+    for _ in range(4):  # the same inputs: only the state moves the outputs
+        with torch.inference_mode():
+            want = policy(TensorDict({"policy": obs}, batch_size=[3])).numpy()
+        got, h = session.run(None, {"obs": obs.numpy(), "h_in": h})
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+    assert not np.allclose(got, session.run(None, {"obs": obs.numpy(), "h_in": 0 * h})[0])
+    with pytest.raises(ValueError, match="h_in"):  # run without its state: named
+        session.run(None, {"obs": obs.numpy()})
+
+
+def test_a_recurrent_onnx_policy_runs_an_episode_of_the_gymnasium_env(recurrent):
+    """The recurrent recipe of docs/environment.md, as written there (a short episode)."""
+    _, folder = recurrent
+    text = (ROOT / "docs" / "environment.md").read_text()
+    section = text.split("## Running an exported policy", 1)[1].split("\n## ", 1)[0]
+    _, code = re.findall(r"```python\n(.*?)```", section, re.DOTALL)
+    code = code.replace('"logs/rwalk/exported"', repr(str(folder)))
+    code = code.replace("ResidualWalkEnv()", "ResidualWalkEnv(config=QUICK)")
+    namespace = {"QUICK": QUICK}
+    exec(compile(code, "environment.md recurrent", "exec"), namespace)
+    assert namespace["done"] and namespace["state"]["h_in"].any()

@@ -140,8 +140,9 @@ class TrainConfig:
     """train a teacher: the actor also reads the privileged pieces (the drawn physics, the
     ground around the feet), which only a simulation has; distil it with --distill"""
     distill: str = ""
-    """train a blind student against this frozen teacher checkpoint (rwalk-train --teacher)
-    with rsl-rl's Distillation: the student reads the policy's pieces (with their noise)"""
+    """train a blind student against this frozen teacher checkpoint, or the newest in this
+    run folder (of an rwalk-train --teacher run), with rsl-rl's Distillation: the student
+    reads the policy's pieces (with their noise)"""
     gradient_length: int = 15
     """--distill: steps whose losses add up before each gradient step (a recurrent student
     learns through them)"""

@@ -115,8 +115,11 @@ def teacher_of(args) -> Teacher | None:
     """
     if not args.distill:
         return None
-    path = Path(args.distill)
-    state = check_rsl_rl(load_checkpoint(path), path)
+    if Path(args.distill).is_dir():  # its newest checkpoint that loads
+        path, state = newest_checkpoint(args.distill)
+    else:
+        path = Path(args.distill)
+        state = check_rsl_rl(load_checkpoint(path), path)
     if "actor_state_dict" not in state:
         raise RunSetupError(f"--distill {path}: a distilled student, not a teacher trained "
                             "with --teacher")  # fmt: skip

@@ -1,0 +1,125 @@
+"""Teacher, student, memory and symmetry (rwalk-train --teacher / --distill / --actor /
+--symmetry): tiny runs through the real rsl-rl runners, and the refusals of bad pairings."""
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+import torch
+from test_distributed import TORCHRUN, environment
+
+from rwalk.rl.checkpoints import checkpoint_files, load_checkpoint
+from rwalk.runners import play, train
+from rwalk.tensorboard_events import read_scalars
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ["--num-envs", "8", "--num-steps-per-env", "8", "--settle-steps", "2",
+        "--max-episode-steps", "30", "--hidden-dims", "16", "--save-interval", "1",
+        "--no-export"]  # fmt: skip
+PLAY = ["--episodes", "2", "--max-steps", "10", "--settle-steps", "2"]
+
+
+@pytest.fixture(scope="module")
+def teacher(tmp_path_factory) -> Path:
+    """A tiny teacher run (its actor reads the privileged pieces)."""
+    folder = tmp_path_factory.mktemp("teacher")
+    train.main([*TINY, "--teacher", "--max-iterations", "2", "--log-dir", str(folder)])
+    return folder
+
+
+def test_a_teachers_actor_reads_the_privileged_pieces(teacher):
+    args = json.loads((teacher / "config.json").read_text())["args"]
+    assert args["teacher"] is True
+    actor = load_checkpoint(teacher / "model_1.pt")["actor_state_dict"]
+    # 65 + phase 2 + lateral 1 + physics 9 + heights 20
+    assert actor["mlp.0.weight"].shape[1] == 65 + 2 + 1 + 9 + 20
+    rows = play.play(["--checkpoint", str(teacher / "model_1.pt"), *PLAY])
+    assert rows[0].episodes == 2
+
+
+@pytest.mark.parametrize("actor", ["mlp", "gru"])
+def test_a_student_distils_the_teacher_and_resumes(teacher, tmp_path, actor, capsys):
+    folder = tmp_path / "student"
+    flags = [*TINY, "--distill", str(teacher), "--actor", actor, "--rnn-hidden-dim", "16"]
+    train.main([*flags, "--max-iterations", "2", "--log-dir", str(folder)])
+    assert f"distilling the teacher {teacher / 'model_1.pt'}" in capsys.readouterr().out
+    saved = load_checkpoint(folder / "model_1.pt")
+    assert {"student_state_dict", "teacher_state_dict"} <= saved.keys()
+    # the student is blind: 65 + phase 2 + lateral 1; the frozen teacher read 97
+    inputs = "rnn.rnn.weight_ih_l0" if actor == "gru" else "mlp.0.weight"
+    assert saved["student_state_dict"][inputs].shape[1] == 68
+    assert saved["teacher_state_dict"]["mlp.0.weight"].shape[1] == 97
+    teacher_weights = load_checkpoint(teacher / "model_1.pt")["actor_state_dict"]
+    assert torch.equal(saved["teacher_state_dict"]["mlp.0.weight"], teacher_weights["mlp.0.weight"])
+    assert "Loss/behavior" in read_scalars(folder)
+    train.main([*flags, "--max-iterations", "3", "--resume", str(folder),
+                "--log-dir", str(folder)])  # fmt: skip
+    assert [it for it, _ in checkpoint_files(folder)] == [0, 1, 2]
+    rows = play.play(["--checkpoint", str(folder / "model_2.pt"), *PLAY])
+    assert rows[0].mean_length == 10
+
+
+def test_recurrent_ppo_and_symmetry_train_and_play(tmp_path):
+    for name, flags in (("gru", ["--actor", "lstm", "--rnn-hidden-dim", "16"]),
+                        ("sym", ["--symmetry"])):  # fmt: skip
+        folder = tmp_path / name
+        train.main([*TINY, *flags, "--max-iterations", "2", "--log-dir", str(folder)])
+        assert play.play(["--checkpoint", str(folder / "model_1.pt"), *PLAY])[0].episodes == 2
+    assert "Loss/symmetry" in read_scalars(tmp_path / "sym")
+    actor = load_checkpoint(tmp_path / "gru" / "model_1.pt")["actor_state_dict"]
+    assert "rnn.rnn.weight_hh_l0" in actor
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--actor", "transformer"], "--actor must be one of mlp, gru, lstm, got 'transformer'"),
+        (["--symmetry", "--actor", "gru"], "--symmetry needs --actor mlp"),
+        (["--symmetry", "--distill", "x.pt"], "--symmetry and --distill do not go together"),
+        (["--teacher", "--distill", "x.pt"], "--teacher and --distill do not go together"),
+    ],
+)
+def test_bad_pairings_are_usage_errors(flags, message, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        train.parse_args(flags)
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_a_checkpoint_that_is_no_teacher_of_this_run_is_named(teacher, tmp_path):
+    def refused(*flags: str) -> str:
+        with pytest.raises(SystemExit) as exit_:
+            train.main([*TINY, "--max-iterations", "2", "--log-dir", str(tmp_path / "out"),
+                        *flags])  # fmt: skip
+        assert not (tmp_path / "out").exists() or not any((tmp_path / "out").glob("*.pt"))
+        return str(exit_.value.code)
+
+    assert "not found" in refused("--distill", str(tmp_path / "missing.pt"))
+    cut = tmp_path / "cut" / "model_1.pt"
+    cut.parent.mkdir()
+    cut.write_bytes((teacher / "model_1.pt").read_bytes()[:5000])
+    assert "cannot be read" in refused("--distill", str(cut))
+    plain = tmp_path / "plain"
+    shutil.copytree(teacher, plain)
+    config = json.loads((plain / "config.json").read_text())
+    config["args"]["teacher"] = False
+    (plain / "config.json").write_text(json.dumps(config))
+    assert "trained without --teacher" in refused("--distill", str(plain))
+    assert (
+        "its teacher trained with --task residual_walk, this student with --task "
+        "adaptive_gait" in refused("--distill", str(teacher), "--task", "adaptive_gait")
+    )
+    assert "with --no-robust" in refused("--distill", str(teacher), "--no-robust")
+
+
+def test_two_ranks_distil_one_student(teacher, tmp_path):
+    done = subprocess.run(
+        [*TORCHRUN, "--standalone", "--nproc-per-node", "2", "-m", "rwalk.runners.train",
+         *TINY, "--distill", str(teacher), "--max-iterations", "2",
+         "--log-dir", str(tmp_path / "run")],
+        cwd=ROOT, env=environment(), capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert [it for it, _ in checkpoint_files(tmp_path / "run")] == [0, 1]
+    assert "student_state_dict" in load_checkpoint(tmp_path / "run" / "model_1.pt")
