@@ -12,7 +12,7 @@ from rwalk.observations import ObservationNoise
 from rwalk.perturbations import Pushes
 from rwalk.physics import Physics
 from rwalk.randomization import Randomization
-from rwalk.rewards import RewardWeights
+from rwalk.rewards import GaitCosts, RewardWeights
 from rwalk.sim import BatchedSim
 from rwalk.tasks import TASKS, AdaptiveGaitConfig, GaitBounds, get_task
 
@@ -26,6 +26,7 @@ __all__ = [
     "Core",
     "EnvConfig",
     "GaitBounds",
+    "GaitCosts",
     "GaitParameters",
     "LegGeometry",
     "ObservationNoise",

@@ -11,7 +11,7 @@ from rwalk.observations import ObservationNoise
 from rwalk.perturbations import Pushes
 from rwalk.physics import Physics
 from rwalk.randomization import Randomization
-from rwalk.rewards import RewardWeights
+from rwalk.rewards import GaitCosts, RewardWeights
 
 #: Most physics substeps per env step: the controller's targets for a whole control
 #: period are computed at once, so this bounds the memory of one step (and of settling).
@@ -78,6 +78,10 @@ class EnvConfig:
     """Physics worker threads including the caller's; 0 uses all cores."""
     reward_weights: RewardWeights = field(default_factory=RewardWeights)
     """Weights of the reward terms."""
+    costs: GaitCosts | None = None
+    """Reward terms beyond the spec's, charging how the robot walks: swing clearance below
+    a target, feet slipping, servo power (``rwalk.rewards.GaitCosts``). None: the spec's
+    four terms only."""
     command_range: tuple[float, float] | None = None
     """None: the reward tracks the gait's step_length / cycle_time (the spec). (low,
     high): each episode draws its target velocity uniformly from it (m/s), and the
@@ -103,6 +107,7 @@ class EnvConfig:
         optional = (
             ("randomization", Randomization), ("pushes", Pushes),
             ("observation_noise", ObservationNoise), ("terrain_levels", TerrainLevels),
+            ("costs", GaitCosts),
         )  # fmt: skip
         for name, kind in kinds + optional:
             if (name, kind) in optional and getattr(self, name) is None:

@@ -147,6 +147,33 @@ HEIGHT_OFFSETS = ((0.0, 0.0), (0.03, 0.0), (-0.03, 0.0), (0.0, 0.03), (0.0, -0.0
 PRIVILEGED_PIECES = ("physics", "heights")
 
 
+def _rotation(sensors: Tensor) -> tuple[tuple[Tensor, Tensor, Tensor], ...]:
+    """Rows of the torso's rotation matrix (torso frame to world) from its quaternion
+    sensor, each entry (N,)."""
+    w, x, y, z = sensors[:, OBS_QUAT].unbind(-1)
+    return (
+        (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)),
+        (2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)),
+        (2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)),
+    )
+
+
+def _rotate(rotation, local: Tensor, origin: Tensor | None = None) -> list[Tensor]:
+    """World x, y, z of torso-frame vectors (plus ``origin``, added first), each (N, 4).
+
+    Args:
+        local: the vectors in the torso frame. Shape: (N, 4, 3).
+        origin: a world point to add. Shape: (N, 3).
+    """
+    out = []
+    for i, row in enumerate(rotation):
+        total = row[0][:, None] * local[..., 0]
+        if origin is not None:
+            total = origin[:, i, None] + total
+        out.append(total + row[1][:, None] * local[..., 1] + row[2][:, None] * local[..., 2])
+    return out
+
+
 def foot_clearances(sensors: Tensor, terrain: Terrain) -> Tensor:
     """Height of each foot above the ground at HEIGHT_OFFSETS around it, foot-major.
 
@@ -155,25 +182,27 @@ def foot_clearances(sensors: Tensor, terrain: Terrain) -> Tensor:
     products and sums only. Shape: (N, 65) -> (N, 4 * len(HEIGHT_OFFSETS)) float64. Metres.
     """
     n = sensors.shape[0]
-    w, x, y, z = sensors[:, OBS_QUAT].unbind(-1)
-    rotation = (
-        (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)),
-        (2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)),
-        (2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)),
-    )
-    local = sensors[:, OBS_FOOT_POS].view(n, 4, 3)
-    world = [
-        sensors[:, OBS_POS.start + i, None]
-        + row[0][:, None] * local[..., 0]
-        + row[1][:, None] * local[..., 1]
-        + row[2][:, None] * local[..., 2]
-        for i, row in enumerate(rotation)
-    ]  # each (N, 4)
+    world = _rotate(_rotation(sensors), sensors[:, OBS_FOOT_POS].view(n, 4, 3),
+                    sensors[:, OBS_POS])  # fmt: skip
     offsets = torch.tensor(HEIGHT_OFFSETS, dtype=torch.float64)
     ground = terrain.heights_at(
         world[0][..., None] + offsets[:, 0], world[1][..., None] + offsets[:, 1]
     )
     return (world[2][..., None] - ground).reshape(n, -1)
+
+
+def foot_velocities(sensors: Tensor) -> Tensor:
+    """Each foot's world velocity: v + ω × (R r) + R v_rel, from the torso's velocity and
+    angular velocity (world frame) and the feet's positions r and velocities v_rel in the
+    torso frame (the observation's sensors). Shape: (N, 65) -> (N, 4, 3) float64. m/s."""
+    n = sensors.shape[0]
+    rotation = _rotation(sensors)
+    r = _rotate(rotation, sensors[:, OBS_FOOT_POS].view(n, 4, 3))
+    v_rel = _rotate(rotation, sensors[:, OBS_FOOT_VEL].view(n, 4, 3))
+    v = [sensors[:, OBS_LINVEL.start + i, None] for i in range(3)]
+    w = [sensors[:, OBS_ANGVEL.start + i, None] for i in range(3)]
+    spin = (w[1] * r[2] - w[2] * r[1], w[2] * r[0] - w[0] * r[2], w[0] * r[1] - w[1] * r[0])
+    return torch.stack([v[i] + spin[i] + v_rel[i] for i in range(3)], -1)
 
 
 def _lateral_offset(s: Sources) -> Tensor:

@@ -17,7 +17,9 @@ from rwalk.levels import DEFAULT_KINDS, TerrainLevels
 from rwalk.observations import ObservationNoise
 from rwalk.perturbations import Pushes
 from rwalk.randomization import Randomization
+from rwalk.rewards import GaitCosts
 from rwalk.tasks import get_task
+from rwalk.tasks.adaptive_gait import GAIT_ACTIONS
 
 __all__ = [
     "BASE_GAIT_SPREAD", "PAD_SPREAD", "START_SPREAD", "TrainingEnv", "base_gait_config",
@@ -47,6 +49,8 @@ def training_config(
     start_spread: float = 0.5,
     robust: bool = False,
     levels: TerrainLevels | None = None,
+    costs: GaitCosts | None = None,
+    gait_action: str = "delta",
 ) -> EnvConfig:
     """The training env: pooled settling and starts spread; for adaptive_gait,
     starting parameters spread by ``start_spread`` (see ``AdaptiveGaitConfig.start_spread``).
@@ -55,9 +59,13 @@ def training_config(
     curriculum, physics randomisation, pushes and observation noise; ``terrain_scale``
     is ignored).
     Otherwise one rough world at ``terrain_scale``, starts spread over it.
+    ``costs``: the reward's gait costs (``rwalk.rewards.GaitCosts``); ``gait_action``:
+    the adaptive task's ``AdaptiveGaitConfig.gait_action`` (other tasks ignore both
+    start_spread and gait_action).
     """
     kind = get_task(task).config_type
-    extra = {"start_spread": start_spread} if "start_spread" in kind.__dataclass_fields__ else {}
+    adaptive = "start_spread" in kind.__dataclass_fields__
+    extra = {"start_spread": start_spread, "gait_action": gait_action} if adaptive else {}
     if robust:
         extra |= robust_world() | {"position_noise": PAD_SPREAD}
         if levels is not None:
@@ -73,6 +81,7 @@ def training_config(
         max_episode_steps=max_episode_steps,
         num_threads=threads,
         command_range=command_range,
+        costs=costs,
         **extra,
     )
 
@@ -158,6 +167,13 @@ class TrainingEnv:
     start_spread: float = 0.5
     """adaptive_gait: episodes start from gait parameters spread by this fraction of each
     range (0: the starting gait; residual_walk ignores it)"""
+    gait_action: str = "delta"
+    """adaptive_gait: the action's first four values are per-step deltas of the gait
+    parameters (delta, the contract) or targets within their ranges, approached at the
+    delta rate (target)"""
+    costs: bool = False
+    """add the gait costs to the reward: swing clearance below a target above the ground,
+    feet slipping, servo power (rwalk.rewards.GaitCosts)"""
     terrain_kinds: tuple[str, ...] = dataclasses.field(
         default=DEFAULT_KINDS, metadata={"item": str}
     )
@@ -177,6 +193,10 @@ class TrainingEnv:
         require_in(self, "terrain_scale", 0.0, 1.0)
         require_in(self, "settle_pool_fraction", 0.0, 1.0, low_open=True)
         get_task(self.task)  # ValueError listing the known tasks
+        if self.gait_action not in GAIT_ACTIONS:
+            raise ValueError(
+                f"--gait-action must be one of {', '.join(GAIT_ACTIONS)}, got {self.gait_action!r}"
+            )
         require_in(self, "demote", 0.0, TerrainLevels.promote)
         try:
             TerrainLevels(kinds=self.terrain_kinds)
@@ -212,4 +232,6 @@ class TrainingEnv:
             command_range=self.commands,
             start_spread=self.start_spread,
             levels=TerrainLevels(kinds=self.terrain_kinds, demote=self.demote),
+            costs=GaitCosts() if self.costs else None,
+            gait_action=self.gait_action,
         )

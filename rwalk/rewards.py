@@ -19,9 +19,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import Any, NamedTuple
 
+import torch
 from torch import Tensor
 
 from rwalk import arrayops, exactmath
+from rwalk.kinematics import LegGeometry
 
 
 @dataclass(frozen=True)
@@ -50,6 +52,59 @@ class RewardWeights:
                 or not math.isfinite(value)
             ):
                 raise ValueError(f"RewardWeights.{f.name} must be a finite number, got {value!r}")
+
+
+#: Fraction of a swing, from its lift-off (0) to its touch-down (1), over which the
+#: clearance term asks for ``clearance_target``: the middle half, where the swing curve is
+#: above 5/6 of the step height (at its ends the foot must meet the ground).
+MID_SWING = (0.25, 0.75)
+
+
+@dataclass(frozen=True)
+class GaitCosts:
+    """Costs of how the robot walks: clearance, slip, effort (none in the spec's reward).
+
+    Each weight is a cost's size (>= 0); the reward adds ``-weight * term``. The sizes
+    were set against the spec's velocity term (300 x (1 - |v_x - v*|): 1 mm/s of
+    velocity error costs 0.3 per step) on the base gait's figures in docs/adaptive.md.
+    """
+
+    clearance: float = 1500.0
+    """Per metre that a mid-swing foot (MID_SWING) passes below ``clearance_target`` above
+    the ground under it or 3 cm ahead of it, summed over feet."""
+    clearance_target: float = 0.015
+    """Clearance asked of the bottom of a mid-swing foot above that ground. Metres."""
+    slip: float = 20.0
+    """Per m/s of horizontal world speed of each foot touching the ground, summed over feet."""
+    power: float = 1.0
+    """Per watt of mechanical servo power, sum over joints of |torque x joint speed|."""
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if (
+                not isinstance(value, (int, float))
+                or isinstance(value, bool)
+                or not math.isfinite(value)
+            ):
+                raise ValueError(f"GaitCosts.{f.name} must be a finite number, got {value!r}")
+        for name in ("clearance", "slip", "power"):
+            if getattr(self, name) < 0:
+                raise ValueError(
+                    f"GaitCosts.{name} is the size of a cost and must be >= 0, "
+                    f"got {getattr(self, name)!r}"
+                )
+        self.check_reach(LegGeometry())
+
+    def check_reach(self, geometry: LegGeometry) -> None:
+        """Raise ValueError naming ``clearance_target`` unless it is > 0 and within the
+        leg's reach (thigh + shin)."""
+        reach = geometry.thigh_length + geometry.shin_length
+        if not 0.0 < self.clearance_target <= reach:
+            raise ValueError(
+                f"GaitCosts.clearance_target must be > 0 and within the leg's reach "
+                f"({reach:g} m), got {self.clearance_target!r}"
+            )
 
 
 def quat_to_rpy(quat: Tensor) -> Tensor:
@@ -104,6 +159,47 @@ def stability(rpy: Tensor) -> Tensor:
 def lateral(y: Tensor, y0: Tensor) -> Tensor:
     """|y - y0|: sideways drift from the episode's start. Shape: (N,) -> (N,)."""
     return abs(y - y0)
+
+
+def _legs(per_leg: Tensor) -> Tensor:
+    """Sum over the last dimension (4 legs or 12 joints), left to right. (N, L) -> (N,)."""
+    values = per_leg.unbind(-1)
+    total = values[0]
+    for value in values[1:]:
+        total = total + value
+    return total
+
+
+def clearance_shortfall(clearance: Tensor, swing_progress: Tensor, target: float) -> Tensor:
+    """Sum over feet in mid swing (progress within MID_SWING) of max(0, target - clearance).
+
+    Args:
+        clearance: height of each foot's bottom above the ground it is passing. Shape:
+            (N, 4). Metres.
+        swing_progress: each leg's progress through its swing, 0 at lift-off, 1 at
+            touch-down; outside [0, 1] in stance. Shape: (N, 4).
+        target: the clearance asked. Metres.
+    """
+    low, high = MID_SWING
+    mid = (swing_progress >= low) & (swing_progress <= high)
+    return _legs(torch.clamp(target - clearance, min=0.0) * mid)
+
+
+def foot_slip(contact: Tensor, foot_velocity: Tensor) -> Tensor:
+    """Sum over feet touching the ground of their horizontal world speed.
+
+    Args:
+        contact: foot-ground contact flags. Shape: (N, 4) bool.
+        foot_velocity: each foot's world velocity. Shape: (N, 4, 3). m/s.
+    """
+    vx, vy = foot_velocity[..., 0], foot_velocity[..., 1]
+    return _legs(torch.sqrt(vx * vx + vy * vy) * contact)
+
+
+def servo_power(torque: Tensor, joint_velocity: Tensor) -> Tensor:
+    """Mechanical power of the servos: sum over joints of |torque x joint speed|.
+    Shapes: (N, 12), (N, 12) -> (N,). Watts."""
+    return _legs(abs(torque * joint_velocity))
 
 
 class StepState(NamedTuple):

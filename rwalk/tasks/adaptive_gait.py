@@ -47,6 +47,8 @@ from rwalk.tasks.base import Task
 
 #: Random stream of the starting parameters with ``start_spread`` (see ``rwalk.rng``).
 START_GAIT_STREAM = "gait_start"
+#: What the action's first four values do (AdaptiveGaitConfig.gait_action).
+GAIT_ACTIONS = ("delta", "target")
 #: The adapted parameters, in the order of the action's and observation's values.
 ADAPTED: tuple[str, ...] = ("step_height", "step_length", "cycle_time", "body_height")
 
@@ -120,8 +122,20 @@ class AdaptiveGaitConfig(EnvConfig):
     training option, so that the policy and its critic see how the parameters
     matter instead of learning from the tiny spread of exploration noise."""
 
+    gait_action: str = "delta"
+    """What the action's first four values a do. "delta" (the contract): each step adds
+    a x delta to the parameter, clipped to its range. "target": each step moves the
+    parameter toward centre + a x half_width of its range by at most delta, so an action
+    held at 0 holds the range's centre, and a parameter never drifts on the integral of
+    exploration noise."""
+
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.gait_action not in GAIT_ACTIONS:
+            raise ValueError(
+                f"AdaptiveGaitConfig.gait_action must be one of {', '.join(GAIT_ACTIONS)}, "
+                f"got {self.gait_action!r}"
+            )
         if not (
             isinstance(self.start_spread, (int, float))
             and not isinstance(self.start_spread, bool)
@@ -190,6 +204,8 @@ class AdaptiveGait(Task):
         """Starting parameters drawn so far by each env (with start_spread). Shape: (N,)."""
         self.gait_phase = torch.zeros(n, dtype=torch.float64)
         """Continuous gait phase in [0, 1) at the start of the next step. Shape: (N,)."""
+        self.sensed = torch.zeros(n, dtype=torch.float64)
+        """Gait phase at the start of the last step's last substep. Shape: (N,)."""
 
     @classmethod
     def pieces(cls) -> dict[str, ObsPiece]:
@@ -226,19 +242,29 @@ class AdaptiveGait(Task):
         world = self.world
         n, k = self.num_envs, world.decimation
         params = self.params
-        params.copy_(torch.minimum(torch.maximum(params + action[:, :4] * self.delta, self.low),
-                                   self.high))  # fmt: skip
+        if self.config.gait_action == "delta":
+            moved = params + action[:, :4] * self.delta
+        else:
+            target = self.centre + action[:, :4] * self.half_width
+            moved = params + torch.minimum(torch.maximum(target - params, -self.delta),
+                                           self.delta)  # fmt: skip
+        params.copy_(torch.minimum(torch.maximum(moved, self.low), self.high))
         residuals = action[:, 4:].reshape(n, 4, 3) * self.config.residual_scale
         phases = advance_phase(self.gait_phase, params[:, 2], world.dt, k)
         shape = GaitShape(params[:, 0], params[:, 1], params[:, 3])
         ctrl = world.controller.joint_targets_at(phases[:, :k], shape, residuals)
         swing = world.controller.swing_at(phases[:, k - 1])
+        self.sensed.copy_(phases[:, k - 1])
         self.gait_phase.copy_(phases[:, k])
         return np.ascontiguousarray(ctrl.numpy()), swing
 
     @property
     def phase(self) -> Tensor:
         return self.gait_phase
+
+    @property
+    def sensed_phase(self) -> Tensor:
+        return self.sensed
 
     def phase_features(self) -> Tensor:
         return self.world.controller.phase_features_at(self.gait_phase)

@@ -53,6 +53,10 @@ class ResidualWalk(Task):
     def phase(self) -> Tensor:
         return self.world.controller.phase(self.tick)
 
+    @property
+    def sensed_phase(self) -> Tensor:
+        return self.world.controller.phase(self.tick - 1)
+
     def phase_features(self) -> Tensor:
         return self.world.controller.phase_features(self.tick)
 

@@ -1,0 +1,197 @@
+"""The gait costs (clearance, slip, power), the adaptive task's target action, and their
+bad inputs."""
+
+import dataclasses
+import math
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from rwalk import AdaptiveGaitConfig, Core, EnvConfig, GaitCosts, GaitParameters
+from rwalk.constants import OBS_CONTACT, OBS_JOINT_VEL
+from rwalk.envs.single_step import SingleStep
+from rwalk.observations import foot_velocities
+from rwalk.presets import TrainingEnv
+from rwalk.rewards import MID_SWING, clearance_shortfall, foot_slip, servo_power
+
+FLAT = "model/world_flat.xml"
+F64 = torch.float64
+COSTS = GaitCosts(clearance=2.0, slip=3.0, power=5.0, clearance_target=0.01)
+
+
+# ------------------------------------------------------------------ terms by hand
+def test_clearance_shortfall_counts_mid_swing_feet_below_the_target():
+    clearance = torch.tensor([[0.005, 0.02, 0.0, -0.01], [0.0, 0.0, 0.0, 0.0]], dtype=F64)
+    progress = torch.tensor([[0.5, 0.5, 0.1, 0.75], [-0.3, 0.25, 0.2499, 1.0]], dtype=F64)
+    value = clearance_shortfall(clearance, progress, 0.015)
+    # row 0: 0.015 - 0.005, nothing (above), not mid swing, 0.015 + 0.01 (0.75 counts)
+    # row 1: stance, 0.015 (0.25 counts), not yet mid swing, touching down
+    expected = torch.tensor([(0.015 - 0.005) + 0.0 + 0.0 + (0.015 + 0.01), 0.015], dtype=F64)
+    assert torch.equal(value, expected)
+    assert MID_SWING == (0.25, 0.75)
+
+
+def test_foot_slip_sums_the_horizontal_speed_of_feet_on_the_ground():
+    contact = torch.tensor([[True, False, True, True]])
+    velocity = torch.tensor([[[3.0, 4.0, 9.0], [10.0, 0.0, 0.0], [0.0, 0.0, 5.0],
+                              [-0.6, 0.8, 0.0]]], dtype=F64)  # fmt: skip
+    assert foot_slip(contact, velocity).tolist() == [5.0 + 0.0 + 0.0 + 1.0]
+
+
+def test_servo_power_sums_the_absolute_mechanical_power_of_the_joints():
+    torque = torch.tensor([[1.0, -2.0, 0.5] + [0.0] * 9], dtype=F64)
+    speed = torch.tensor([[3.0, 4.0, -2.0] + [7.0] * 9], dtype=F64)
+    assert servo_power(torque, speed).tolist() == [3.0 + 8.0 + 1.0]
+
+
+def test_foot_velocities_match_mujoco_s_own_site_velocity():
+    model = mujoco.MjModel.from_xml_path("rwalk/model/world_flat.xml")
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, 0)
+    rng = np.random.default_rng(0)
+    data.qvel[:] = rng.normal(size=model.nv)
+    quat = np.array([0.9, 0.1, 0.2, 0.1])
+    data.qpos[3:7] = quat / np.linalg.norm(quat)
+    mujoco.mj_forward(model, data)
+    sensors = torch.tensor(data.sensordata[None, :65].copy())
+    ours = foot_velocities(sensors)[0]
+    for leg, name in enumerate(("FL", "FR", "RL", "RR")):
+        site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"{name}_foot")
+        velocity = np.zeros(6)
+        mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_SITE, site, velocity, 0)
+        # Another order of the same products: equal to rounding.
+        np.testing.assert_allclose(ours[leg].numpy(), velocity[3:], rtol=0, atol=1e-12)
+
+
+# ------------------------------------------------------------------ terms in the env
+def _core(task="residual_walk", n=3, **changes):
+    kind = AdaptiveGaitConfig if task == "adaptive_gait" else EnvConfig
+    config = kind(model_path=FLAT, settle_steps=10, costs=COSTS, **changes)
+    return Core(config, n, seed=0, task=task)
+
+
+@pytest.mark.parametrize("task", ["residual_walk", "adaptive_gait"])
+def test_the_costs_are_declared_terms_weighted_by_minus_their_size(task):
+    core = _core(task)
+    assert [t.name for t in core.terms][-3:] == ["clearance", "slip", "power"]
+    assert [t.weight for t in core.terms][-3:] == [-2.0, -3.0, -5.0]
+    core.reset()
+    for _ in range(12):
+        result = core.step(torch.zeros(3, core.task.action_dim))
+    sensors = core.obs.numpy()
+    torque = core.sim.actuator_force
+    for i in range(3):
+        power = 0.0
+        for j in range(12):  # left to right, as the term adds
+            power = power + abs(torque[i, j] * sensors[i, OBS_JOINT_VEL.start + j])
+        assert result.terms["power"][i].item() == -5.0 * power
+    velocity = foot_velocities(core.obs)
+    contact = core.obs[:, OBS_CONTACT] > 0.5
+    assert torch.equal(result.terms["slip"], -3.0 * foot_slip(contact, velocity))
+    assert torch.equal(result.reward, sum(result.terms.values(), torch.zeros(3, dtype=F64)))
+    assert (result.terms["power"] < 0).all() and (result.terms["clearance"] <= 0).all()
+
+
+def test_a_standing_robot_s_swing_feet_fall_short_by_the_target():
+    """With a step height of 1 micrometre every foot stays on the ground: each mid-swing
+    foot's bottom is at the ground (within the contact's millimetre), so each falls short
+    by about the whole target."""
+    gait = dataclasses.replace(GaitParameters(), step_height=1e-6)
+    core = _core(gait=gait, n=1)
+    core.reset()
+    duty = gait.duty_factor
+    seen = 0
+    for _ in range(40):
+        result = core.step(torch.zeros(1, 12))
+        legs = core.controller.leg_phases(core.task.sensed_phase)[0]
+        progress = (legs - duty) / (1 - duty)
+        mid = int(((progress >= MID_SWING[0]) & (progress <= MID_SWING[1])).sum())
+        shortfall = -result.terms["clearance"].item() / COSTS.clearance
+        assert shortfall == pytest.approx(mid * COSTS.clearance_target, abs=mid * 0.002)
+        seen += mid
+    assert seen > 0
+
+
+def test_the_sensed_phase_is_the_phase_of_the_reported_swing_flags():
+    """The adaptive task's continuous phase, from the nominal gait with zero deltas, agrees
+    with the residual task's table at the sensed substep."""
+    residual, adaptive = _core(n=1), _core("adaptive_gait", n=1)
+    residual.reset(), adaptive.reset()
+    for _ in range(45):
+        residual.step(torch.zeros(1, 12))
+        adaptive.step(torch.zeros(1, 16))
+        a, b = residual.task.sensed_phase, adaptive.task.sensed_phase
+        assert abs(float(a - b)) < 1e-9 or abs(abs(float(a - b)) - 1.0) < 1e-9
+
+
+def test_costs_need_the_batched_pipeline_and_the_spec_s_env_has_none():
+    assert EnvConfig().costs is None and AdaptiveGaitConfig().costs is None
+    assert not SingleStep.supports(_core(n=1))
+    assert SingleStep.supports(Core(EnvConfig(model_path=FLAT, settle_steps=10), 1))
+    assert TrainingEnv().config().costs is None
+    assert TrainingEnv(costs=True).config().costs == GaitCosts()
+
+
+# ------------------------------------------------------------------ the target action
+def test_the_target_action_moves_each_parameter_toward_its_target_at_the_delta_rate():
+    core = _core("adaptive_gait", n=3, gait_action="target")
+    task = core.task
+    core.reset()
+    start = task.params.clone()
+    assert torch.equal(start, task.centre.expand(3, 4))  # the default gait is the centre
+    action = torch.zeros(3, 16, dtype=F64)
+    action[0, :4] = 1.0  # every parameter toward its top
+    action[1, :4] = 0.0  # hold the centre
+    action[2, :4] = torch.tensor([0.5, -0.5, 0.01, -0.01])
+    core.step(action)
+    assert torch.equal(task.params[0], start[0] + task.delta)
+    assert torch.equal(task.params[1], start[1])
+    target = task.centre + action[2, :4] * task.half_width
+    near = (target - start[2]).abs() <= task.delta
+    expected = torch.where(near, target, start[2] + torch.sign(target - start[2]) * task.delta)
+    assert torch.equal(task.params[2], expected)
+    for _ in range(60):
+        core.step(action)
+    assert torch.equal(task.params[0], task.high)  # reached its top, and stays in range
+    assert torch.equal(task.params[1], start[1])
+    assert torch.allclose(task.params[2], target, rtol=0, atol=1e-15)
+
+
+# ------------------------------------------------------------------ bad input
+@pytest.mark.parametrize(
+    ("changes", "field"),
+    [
+        ({"clearance": -1.0}, "clearance"),
+        ({"slip": -0.5}, "slip"),
+        ({"power": -1e-9}, "power"),
+        ({"power": math.nan}, "power"),
+        ({"slip": math.inf}, "slip"),
+        ({"clearance": "1"}, "clearance"),
+        ({"clearance_target": -0.01}, "clearance_target"),
+        ({"clearance_target": 0.0}, "clearance_target"),
+        ({"clearance_target": 0.2}, "clearance_target"),
+        ({"clearance_target": math.nan}, "clearance_target"),
+    ],
+)
+def test_bad_costs_are_refused_naming_the_field(changes, field):
+    with pytest.raises(ValueError, match=rf"GaitCosts\.{field}\b"):
+        GaitCosts(**changes)
+
+
+def test_a_clearance_target_beyond_the_model_s_legs_is_refused():
+    from rwalk.kinematics import LegGeometry
+
+    short = LegGeometry(thigh_length=0.01, shin_length=0.01)
+    with pytest.raises(ValueError, match=r"clearance_target.*0\.02 m"):
+        GaitCosts(clearance_target=0.05).check_reach(short)
+
+
+def test_costs_of_another_kind_and_unknown_gait_actions_are_refused():
+    with pytest.raises(TypeError, match="EnvConfig.costs must be a GaitCosts"):
+        EnvConfig(costs={"clearance": 1.0})
+    with pytest.raises(ValueError, match="AdaptiveGaitConfig.gait_action.*'absolute'"):
+        AdaptiveGaitConfig(gait_action="absolute")
+    with pytest.raises(ValueError, match="--gait-action.*'absolute'"):
+        TrainingEnv(gait_action="absolute")
