@@ -189,9 +189,9 @@ def test_a_clearance_target_beyond_the_model_s_legs_is_refused():
 
 
 def test_costs_of_another_kind_and_unknown_gait_actions_are_refused():
-    with pytest.raises(TypeError, match="EnvConfig.costs must be a GaitCosts"):
+    with pytest.raises(TypeError, match=r"EnvConfig\.costs must be a GaitCosts"):
         EnvConfig(costs={"clearance": 1.0})
-    with pytest.raises(ValueError, match="AdaptiveGaitConfig.gait_action.*'absolute'"):
+    with pytest.raises(ValueError, match=r"AdaptiveGaitConfig\.gait_action.*'absolute'"):
         AdaptiveGaitConfig(gait_action="absolute")
-    with pytest.raises(ValueError, match="--gait-action.*'absolute'"):
+    with pytest.raises(ValueError, match=r"--gait-action.*'absolute'"):
         TrainingEnv(gait_action="absolute")
