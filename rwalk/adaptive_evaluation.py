@@ -1,50 +1,68 @@
-"""An adaptive and a residual policy against the base gait (docs/adaptive.md).
+"""An adaptive and a residual policy against the base gait, and the adaptive policy's gait
+by terrain (docs/adaptive.md; ``rwalk-adaptive-report`` is the command line).
 
-Every row runs the same paired episodes (episode i starts like a single env
-seeded seed + i): ``compare`` runs (a) the training terrain, (b) rougher
-terrain and (c) each of ``SPEEDS`` commanded on the training terrain. The speed
-is each episode's target velocity, which the reward and the velocity error
-track; only a policy trained with commands reads it, the base gait and the
-residual policy walk as they do. ``gait_traces`` follows the adaptive policy's
-gait parameters over one episode per terrain. ``rwalk-adaptive-report`` is the
-command line.
+Every row runs the same paired episodes (episode i starts like a single env seeded
+seed + i). ``compare`` runs (a) flat ground (the rough world at scale 0), where the
+cost of transport compares the gaits' effort, (b) the nominal evaluation (the rough
+world at scale 1.0, robustness's "nominal") and (c) each of ``SPEEDS`` commanded on
+it. The speed is each episode's target velocity, which the reward and the velocity
+error track; only a policy trained with commands reads it (asked for the gait's speed
+in (a) and (b)); the base gait and a residual policy walk as they do.
+
+``gait_by_terrain`` puts the adaptive policy on every kind of tile (flat, rough,
+slopes, steps, stones) of a held-out terrain-levels map at every level and reports
+the mean and spread of each gait parameter it commands; ``adaptation`` checks the
+step height on rough and step tiles at the upper levels against flat ground.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from rwalk import presets
+from rwalk import episodes, presets
 from rwalk.envs.torchrl_env import BatchedEnv
-from rwalk.evaluation import Evaluation, evaluate, load_policy, saved_args
+from rwalk.evaluation import Evaluation, Policy, acts_in, evaluate, load_policy, saved_args
+from rwalk.levels import TerrainLevels
+from rwalk.robustness import HELD_OUT_MAP_SEED, on_map
 from rwalk.tasks.adaptive_gait import ADAPTED
 
 #: Commanded speeds of the rows (c). m/s.
 SPEEDS = (0.05, 0.10, 0.15, 0.20, 0.25)
+#: The kinds of tile ``gait_by_terrain`` walks on, flat first.
+TERRAIN_KINDS = ("flat", "rough", "slopes", "steps", "stones")
+#: Steps at the start of each episode left out of the gait statistics: the policy moves
+#: the parameters away from the starting gait within a second.
+SKIP_STEPS = 50
+#: Kinds and lowest level of ``adaptation``'s hard ground, and its floor: the step height
+#: there over that on flat ground.
+HARD_KINDS = ("rough", "steps")
+HARD_FROM_LEVEL = 5
+ADAPTATION_FLOOR = 1.5
 
 
-def make_env(
-    task: str, episodes: int, seed: int, scale: float, command: float | None
-) -> BatchedEnv:
-    """``episodes`` envs of ``task`` on terrain ``scale``, asked for ``command`` m/s
-    (None: no command)."""
-    cfg = presets.evaluation_config(
-        task, scale, command_range=None if command is None else (command, command)
-    )
-    return BatchedEnv(episodes, cfg, seed=seed, task=task)
+def _commanded(checkpoint: Path | None) -> bool:
+    return checkpoint is not None and bool(saved_args(checkpoint).get("command_range"))
 
 
-def run_row(name, checkpoint, episodes, seed, scale, command=None) -> Evaluation:
-    """One row: the base gait (checkpoint None) or a policy, on ``episodes`` paired episodes."""
-    saved = {} if checkpoint is None else saved_args(checkpoint)
-    task = saved.get("task", "residual_walk")
-    if saved.get("command_range") and command is None:
-        command = presets.EnvConfig().expected_velocity  # it reads a command: the gait's speed
-    env = make_env(task, episodes, seed, scale, command)
+def run_row(name, checkpoint, episodes, seed, scale, command=None, **lengths) -> Evaluation:
+    """One row: the base gait (checkpoint None) or a policy, on ``episodes`` paired episodes
+    of the rough world at ``scale``, asked for ``command`` m/s (None: a commanded policy is
+    asked for the gait's speed). ``lengths``: max_steps, settle_steps (the spec's
+    evaluation's by default)."""
+    acts = {"task": "residual_walk"} if checkpoint is None else acts_in(checkpoint)
+    if command is None and _commanded(checkpoint):
+        command = presets.EnvConfig().expected_velocity
+    config = presets.evaluation_config(
+        **acts, **lengths, terrain_scale=scale,
+        command_range=None if command is None else (command, command),
+    )  # fmt: skip
+    env = BatchedEnv(episodes, config, seed=seed, task=acts["task"])
     policy = None if checkpoint is None else load_policy(checkpoint, env)
     row = evaluate(name, env, seed, policy)
     asked = "-" if command is None else f"{command:.3f}"
@@ -52,70 +70,196 @@ def run_row(name, checkpoint, episodes, seed, scale, command=None) -> Evaluation
 
 
 def compare(
-    policies: dict[str, Path | None],
-    episodes: int,
-    seed: int,
-    train_scale: float,
-    rough_scale: float,
+    policies: dict[str, Path | None], episodes: int, seed: int, scale: float = 1.0, **lengths
 ) -> dict[str, list[Evaluation]]:
-    """Rows (a) on ``train_scale``, (b) on ``rough_scale`` and (c) at each of ``SPEEDS`` on
-    ``train_scale``, each a row per policy (name -> checkpoint; None = the base gait)."""
+    """Rows (a) on flat ground, (b) at ``scale`` and (c) at each of ``SPEEDS`` at ``scale``,
+    each a row per policy (name -> checkpoint; None = the base gait). ``lengths``: as
+    ``run_row``'s."""
     out = {}
-    for label, scale in (("a", train_scale), ("b", rough_scale)):
-        out[label] = [run_row(n, c, episodes, seed, scale) for n, c in policies.items()]
+    for label, terrain in (("a", 0.0), ("b", scale)):
+        out[label] = [
+            run_row(n, c, episodes, seed, terrain, **lengths) for n, c in policies.items()
+        ]
     out["c"] = [
-        run_row(n, c, episodes, seed, train_scale, speed)
+        run_row(n, c, episodes, seed, scale, speed, **lengths)
         for speed in SPEEDS
         for n, c in policies.items()
     ]
     return out
 
 
-def gait_trace(checkpoint: Path, seed: int, scale: float, steps: int) -> np.ndarray:
-    """The adaptive policy's four parameters at every step of one episode. (steps, 4)."""
-    env = make_env("adaptive_gait", 1, seed, scale, None)
-    if saved_args(checkpoint).get("command_range"):
-        speed = presets.EnvConfig().expected_velocity
-        env = make_env("adaptive_gait", 1, seed, scale, speed)
-    policy = load_policy(checkpoint, env)
+@dataclass(frozen=True)
+class GaitStats:
+    """The commanded gait of one kind of tile at one level, over its episodes."""
+
+    kind: str
+    level: int
+    episodes: int
+    fall_rate: float
+    mean: tuple[float, ...]
+    """Per parameter (``ADAPTED`` order, SI units): mean over episodes of each
+    episode's mean."""
+    interval: tuple[float, ...]
+    """Per parameter: half-width of the 95% interval of ``mean`` (1.96 standard errors
+    over episodes)."""
+    spread: tuple[float, ...]
+    """Per parameter: standard deviation over every step of every episode."""
+
+
+def gait_by_terrain(
+    checkpoint: Path,
+    episodes: int,
+    seed: int,
+    steps: int = 500,
+    levels: TerrainLevels | None = None,
+) -> list[GaitStats]:
+    """The adaptive policy's gait on each of ``TERRAIN_KINDS`` at each level of a held-out
+    map (``levels``: default ``TerrainLevels(seed=HELD_OUT_MAP_SEED)``'s), ``episodes``
+    paired episodes each, ``steps`` long; the first SKIP_STEPS of each are left out. A
+    commanded policy is asked for the gait's speed."""
+    return walk_levels(
+        lambda env: load_policy(checkpoint, env), acts_in(checkpoint)["gait_action"],
+        _commanded(checkpoint), episodes, seed, steps, levels,
+    )  # fmt: skip
+
+
+def walk_levels(
+    policy_for: Callable[[BatchedEnv], Policy],
+    gait_action: str,
+    commanded: bool,
+    episodes: int,
+    seed: int,
+    steps: int,
+    levels: TerrainLevels | None = None,
+) -> list[GaitStats]:
+    """``gait_by_terrain`` of the policy that ``policy_for`` builds on each level's env
+    (adaptive_gait with ``gait_action``; asked for the gait's speed if ``commanded``)."""
+    levels = levels or TerrainLevels(seed=HELD_OUT_MAP_SEED)
+    speed = presets.EnvConfig().expected_velocity
+    kinds = len(TERRAIN_KINDS)
+    out = []
+    for level in range(levels.levels):
+        base = presets.evaluation_config(
+            "adaptive_gait", max_steps=steps, gait_action=gait_action,
+            command_range=(speed, speed) if commanded else None,
+        )  # fmt: skip
+        config = on_map(base, dataclasses.replace(
+            levels, kinds=TERRAIN_KINDS, start_level=level, curriculum=False))  # fmt: skip
+        env = BatchedEnv(episodes * kinds, config, seed=seed, task="adaptive_gait")
+        sums, squares, counts, fell = _walk(env, policy_for(env), seed, steps)
+        for k, kind in enumerate(TERRAIN_KINDS):
+            rows = slice(k, None, kinds)  # env i walks on kind i % kinds
+            n = counts[rows].clamp(min=1).unsqueeze(-1)
+            per_episode = sums[rows] / n
+            pooled_mean = sums[rows].sum(0) / n.sum()
+            pooled_var = squares[rows].sum(0) / n.sum() - pooled_mean**2
+            sd = per_episode.std(0) if episodes > 1 else torch.zeros(len(ADAPTED))
+            out.append(GaitStats(
+                kind=kind, level=level, episodes=episodes,
+                fall_rate=float(fell[rows].double().mean()),
+                mean=tuple(per_episode.mean(0).tolist()),
+                interval=tuple((1.96 * sd / math.sqrt(episodes)).tolist()),
+                spread=tuple(pooled_var.clamp(min=0).sqrt().tolist()),
+            ))  # fmt: skip
+    return out
+
+
+def _walk(env: BatchedEnv, policy, seed: int, steps: int):
+    """One episode per env: per env, sums and sums of squares of the parameters over its
+    steps after SKIP_STEPS until its episode ended, their count, and whether it fell."""
+    core = env.core
     env.set_seed(seed)
-    env.core.reset()
-    rows = []
+    core.reset()
+    policy.reset()
+    n = core.num_envs
+    sums = torch.zeros(n, len(ADAPTED), dtype=torch.float64)
+    squares = torch.zeros_like(sums)
+    counts = torch.zeros(n, dtype=torch.float64)
+    ended = torch.zeros(n, dtype=torch.bool)
+    fell = torch.zeros(n, dtype=torch.bool)
     with torch.inference_mode():
-        for _ in range(steps):
-            result = env.core.step(policy())
-            rows.append(env.core.task.params[0].tolist())
-            if bool(result.terminated[0] | result.truncated[0]):
+        for step in range(steps):
+            _, end = episodes.step(core, policy(), auto_reset=False)
+            if step >= SKIP_STEPS:
+                live = (~ended).double().unsqueeze(-1)
+                params = core.task.params
+                sums += params * live
+                squares += params * params * live
+                counts += live[:, 0]
+            if end is not None:
+                fresh = end.ids[~ended[end.ids]]
+                fell[fresh] = end.stats["terminated"][~ended[end.ids]].bool()
+                ended[end.ids] = True
+            if bool(ended.all()):
                 break
-    return np.array(rows)
+    return sums, squares, counts, fell
 
 
-def gait_traces(
-    checkpoint: Path, seed: int, scales: tuple[float, ...], steps: int = 1000
-) -> dict[str, np.ndarray]:
-    """``gait_trace`` on each terrain scale: "terrain <scale>" -> (steps, 4)."""
-    return {f"terrain {scale:g}": gait_trace(checkpoint, seed, scale, steps) for scale in scales}
+def adaptation(stats: list[GaitStats]) -> dict:
+    """Step height on HARD_KINDS tiles at levels >= HARD_FROM_LEVEL against flat ground (all
+    levels): the means over their episodes, 95% intervals, the ratio, and whether it meets
+    ADAPTATION_FLOOR with intervals that do not overlap."""
+
+    def pooled(rows: list[GaitStats]) -> tuple[float, float]:
+        # Equal episodes per row: the mean of row means, the interval of their pooled sample.
+        mean = sum(r.mean[0] for r in rows) / len(rows)
+        se2 = sum((r.interval[0] / 1.96) ** 2 for r in rows) / len(rows) ** 2
+        return mean, 1.96 * math.sqrt(se2)
+
+    hard = pooled([r for r in stats if r.kind in HARD_KINDS and r.level >= HARD_FROM_LEVEL])
+    flat = pooled([r for r in stats if r.kind == "flat"])
+    ratio = hard[0] / flat[0]
+    apart = hard[0] - hard[1] > flat[0] + flat[1]
+    return {
+        "hard": hard, "flat": flat, "ratio": ratio,
+        "met": ratio >= ADAPTATION_FLOOR and apart,
+    }  # fmt: skip
 
 
-def plot(traces: dict[str, np.ndarray], path: Path) -> None:
-    """Each of ``traces``' (steps, 4) parameters over the episode, one panel each, as a PNG."""
+def gait_table(stats: list[GaitStats]) -> str:
+    """Mean ± 95% interval (spread) of each parameter per kind and level, as Markdown."""
+    units = {"step_height": 1000, "step_length": 1000, "cycle_time": 1, "body_height": 1000}
+    names = {"step_height": "step height (mm)", "step_length": "step length (mm)",
+             "cycle_time": "cycle time (s)", "body_height": "body height (mm)"}  # fmt: skip
+    lines = [
+        "| kind | level | falls | " + " | ".join(names[p] for p in ADAPTED) + " |",
+        "| --- | --- | --- |" + " --- |" * len(ADAPTED),
+    ]
+    for r in stats:
+        cells = []
+        for i, p in enumerate(ADAPTED):
+            u, digits = units[p], (1 if units[p] > 1 else 3)
+            cells.append(f"{r.mean[i] * u:.{digits}f} ± {r.interval[i] * u:.{digits}f} "
+                         f"({r.spread[i] * u:.{digits}f})")  # fmt: skip
+        lines.append(f"| {r.kind} | {r.level} | {r.fall_rate:.0%} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def plot_levels(stats: list[GaitStats], path: Path) -> None:
+    """Each parameter against the terrain level, one line per kind with its 95% intervals."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    units = {"step_height": 1000, "step_length": 1000, "cycle_time": 1, "body_height": 1000}
-    labels = {"step_height": "mm", "step_length": "mm", "cycle_time": "s", "body_height": "mm"}
-    fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True)
-    for ax, (i, name) in zip(axes, enumerate(ADAPTED), strict=True):
-        for terrain, trace in traces.items():
-            t = np.arange(len(trace)) * 0.02
-            ax.plot(t, trace[:, i] * units[name], label=terrain)
-        ax.set_ylabel(f"{name} ({labels[name]})")
+    units = {"step_height": (1000, "mm"), "step_length": (1000, "mm"), "cycle_time": (1, "s"),
+             "body_height": (1000, "mm")}  # fmt: skip
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7), sharex=True)
+    for ax, (i, name) in zip(axes.flat, enumerate(ADAPTED), strict=True):
+        scale, unit = units[name]
+        for kind in TERRAIN_KINDS:
+            rows = [r for r in stats if r.kind == kind]
+            ax.errorbar([r.level for r in rows], [r.mean[i] * scale for r in rows],
+                        yerr=[r.interval[i] * scale for r in rows], capsize=2, marker="o",
+                        markersize=3, label=kind)  # fmt: skip
+        ax.set_title(f"{name} ({unit})")
         ax.grid(alpha=0.3)
-    axes[0].legend()
-    axes[-1].set_xlabel("time in episode (s)")
-    fig.suptitle("Adaptive policy: gait parameters over one episode (same start)")
+    for ax in axes[1]:
+        ax.set_xlabel("terrain level (0 flat .. 9 hardest)")
+    axes[0, 0].legend()
+    fig.suptitle(
+        "Adaptive policy: commanded gait by kind of tile and level (held-out map, 95% intervals)"
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -125,12 +269,13 @@ def table(rows: list[Evaluation]) -> str:
     """The rows as a Markdown table (each row's name holds its policy, terrain and command)."""
     lines = [
         "| policy | terrain | commanded (m/s) | fall rate | forward velocity (m/s) "
-        "| velocity error (m/s) | mean return |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        "| velocity error (m/s) | servo power (W) | cost of transport |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in rows:
         lines.append(
             f"| {r.name} | {r.fall_rate:.0%} | {r.forward_velocity:.3f} | "
-            f"{r.velocity_error:.4f} ± {r.velocity_error_se * 1.96:.4f} | {r.mean_return:,.0f} |"
+            f"{r.velocity_error:.4f} ± {r.velocity_error_se * 1.96:.4f} | {r.power:.2f} | "
+            f"{r.cost_of_transport:.2f} |"
         )
     return "\n".join(lines)

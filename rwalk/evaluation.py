@@ -23,7 +23,9 @@ from pathlib import Path
 import torch
 
 from rwalk import episodes, presets
+from rwalk.constants import OBS_JOINT_VEL
 from rwalk.envs.torchrl_env import BatchedEnv
+from rwalk.rewards import servo_power
 from rwalk.rl.checkpoints import CheckpointError, check_rsl_rl, load_checkpoint, quote, trainer_of
 from rwalk.rl.config import load_saved_args, observation_groups
 from rwalk.rl.rsl_rl_env import RslRlVecEnv
@@ -49,6 +51,12 @@ class Evaluation:
     contact_score: float
     """Mean over episodes of the per-step contact_pattern term (max 0.2)."""
     mean_length: float
+    power: float = math.nan
+    """Mean over episodes of the mean servo power, sum over joints of |torque x joint
+    speed| (``rwalk.rewards.servo_power``). Watts."""
+    cost_of_transport: float = math.nan
+    """power / (m g forward_velocity), m the model's mass (a randomised payload not
+    counted): energy per unit of weight and distance. Dimensionless."""
 
     @classmethod
     def from_json(cls, data: object) -> Evaluation:
@@ -58,10 +66,12 @@ class Evaluation:
         Raises:
             ValueError: naming the field.
         """
-        if not isinstance(data, dict) or set(data) != {f.name for f in dataclasses.fields(cls)}:
+        keys = {f.name for f in dataclasses.fields(cls)}
+        needed = {f.name for f in dataclasses.fields(cls) if f.default is dataclasses.MISSING}
+        if not isinstance(data, dict) or not needed <= set(data) <= keys:
             raise ValueError(
-                f"an evaluation must be an object with the keys "
-                f"{[f.name for f in dataclasses.fields(cls)]}"
+                f"an evaluation must be an object with the keys {sorted(needed)} (and "
+                f"optionally {sorted(keys - needed)})"
             )
         name = data["name"]
         if not isinstance(name, str) or len(name) > 200:
@@ -71,6 +81,14 @@ class Evaluation:
             if not isinstance(value, (int, float)) or isinstance(value, bool):
                 raise ValueError(f"an evaluation's {key} must be a number")
         return cls(**data)
+
+
+def fall_interval(evaluation: Evaluation) -> tuple[float, float]:
+    """Wilson's 95% interval of the fall rate over the evaluation's episodes."""
+    n, p, z = evaluation.episodes, evaluation.fall_rate, 1.96
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
 
 
 #: Largest results file (--tables) read back. Bytes.
@@ -102,6 +120,14 @@ def saved_run(checkpoint: Path):
         FileNotFoundError, ConfigError: naming the file (``rwalk.rl.config.load_saved_args``).
     """
     return load_saved_args(Path(checkpoint).parent / "config.json")
+
+
+def acts_in(checkpoint: Path) -> dict[str, str]:
+    """What an env must be for ``checkpoint``'s policy to act in it: its run's ``task``
+    and ``gait_action`` (how the adaptive task reads the action; keyword arguments of
+    ``presets.evaluation_config``)."""
+    env = saved_run(checkpoint).env
+    return {"task": env.task, "gait_action": env.gait_action}
 
 
 def saved_args(checkpoint: Path) -> dict:
@@ -148,7 +174,9 @@ def check_policy(checkpoint: Path, task: str | None = None):
         raise ValueError(
             f"checkpoint {str(checkpoint)!r} is a {args.task!r} policy, not a {task!r} one"
         )
-    config = presets.evaluation_config(args.task, settle_steps=0, command_range=args.env.commands)
+    config = presets.evaluation_config(
+        **acts_in(checkpoint), settle_steps=0, command_range=args.env.commands
+    )
     load_policy(checkpoint, BatchedEnv(1, config, seed=0, task=args.task))
     return args
 
@@ -220,6 +248,12 @@ def load_policy(checkpoint: Path, env: BatchedEnv) -> Policy:
             f"checkpoint {str(checkpoint)!r} is a {args.task!r} policy; the env runs "
             f"{env.core.task.name!r}"
         )
+    action = getattr(env.core.config, "gait_action", args.env.gait_action)
+    if action != args.env.gait_action:
+        raise ValueError(
+            f"checkpoint {str(checkpoint)!r} sets the gait with --gait-action "
+            f"{args.env.gait_action}; the env reads its action as {action!r}"
+        )
     groups = observation_groups(env.core.task, args.env, args.train)
     adapter = RslRlVecEnv(env, policy_obs=groups["policy"], critic_obs=(),
                           reward_scale=args.reward_scale)  # fmt: skip
@@ -260,9 +294,13 @@ def evaluate(
     first: dict[str, torch.Tensor] = {}  # each env's first episode (the envs run on after it)
     ended = torch.zeros(n, dtype=torch.bool)
     zeros = torch.zeros(n, core.task.action_dim)
+    energy = torch.zeros(n, dtype=torch.float64)  # joules / dt of each first episode
+    torque = torch.from_numpy(core.sim.actuator_force)
     with torch.inference_mode():
         for step in range(limit):
             _, end = episodes.step(core, zeros if policy is None else policy(), auto_reset=False)
+            power = servo_power(torque, core.obs[:, OBS_JOINT_VEL])
+            energy += power.masked_fill(ended, 0.0)
             if end is not None:
                 keep = ~ended[end.ids]
                 rows = end.ids[keep]
@@ -278,16 +316,21 @@ def evaluate(
     length = first["length"]
     errors = first["velocity_error"]
     contact = first.get("sum/contact_pattern", torch.full((n,), math.nan)) / length
+    power = float((energy / length).mean())
+    forward_velocity = float(first["forward_velocity"].mean())
+    weight = float(core.sim.model.body_mass.sum()) * -float(core.sim.model.opt.gravity[2])
     return Evaluation(
         name=name,
         episodes=n,
         mean_return=float(first["return"].mean()),
         fall_rate=float(first["terminated"].double().mean()),
-        forward_velocity=float(first["forward_velocity"].mean()),
+        forward_velocity=forward_velocity,
         velocity_error=float(errors.mean()),
         velocity_error_se=float(errors.std() / n**0.5) if n > 1 else 0.0,
         contact_score=float(contact.mean()),
         mean_length=float(length.mean()),
+        power=power,
+        cost_of_transport=power / (weight * forward_velocity) if forward_velocity > 0 else math.nan,
     )
 
 

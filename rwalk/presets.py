@@ -64,7 +64,7 @@ def training_config(
     start_spread and gait_action).
     """
     kind = get_task(task).config_type
-    adaptive = "start_spread" in kind.__dataclass_fields__
+    adaptive = "gait_action" in kind.__dataclass_fields__
     extra = {"start_spread": start_spread, "gait_action": gait_action} if adaptive else {}
     if robust:
         extra |= robust_world() | {"position_noise": PAD_SPREAD}
@@ -103,9 +103,15 @@ def evaluation_config(
     max_steps: int = 1000,
     settle_steps: int = 500,
     command_range: tuple[float, float] | None = None,
+    gait_action: str = "delta",
 ) -> EnvConfig:
-    """The spec's episodes on the rough world, starts spread over the terrain."""
-    return get_task(task).config_type(
+    """The spec's episodes on the rough world, starts spread over the terrain;
+    ``gait_action``: the adaptive task's (``AdaptiveGaitConfig.gait_action``; other tasks
+    ignore it)."""
+    kind = get_task(task).config_type
+    extra = {"gait_action": gait_action} if "gait_action" in kind.__dataclass_fields__ else {}
+    return kind(
+        **extra,
         randomize=True,
         position_noise=START_SPREAD,
         terrain_scale=terrain_scale,

@@ -29,7 +29,14 @@ from pathlib import Path
 from rwalk import presets
 from rwalk.config import EnvConfig
 from rwalk.envs.torchrl_env import BatchedEnv
-from rwalk.evaluation import Evaluation, evaluate, load_policy, read_results
+from rwalk.evaluation import (
+    Evaluation,
+    acts_in,
+    evaluate,
+    fall_interval,
+    load_policy,
+    read_results,
+)
 from rwalk.levels import TerrainLevels
 from rwalk.perturbations import Pushes
 from rwalk.randomization import Randomization
@@ -40,7 +47,9 @@ HELD_OUT_MAP_SEED = 1234
 MAP_SETTLE_STEPS = 100
 
 
-def _map(base: EnvConfig, levels: TerrainLevels) -> EnvConfig:
+def on_map(base: EnvConfig, levels: TerrainLevels) -> EnvConfig:
+    """``base``'s episodes on the pads of a terrain-levels map: the pads' start spread,
+    and at most MAP_SETTLE_STEPS of settling."""
     return dataclasses.replace(
         base,
         terrain_levels=levels,
@@ -60,13 +69,13 @@ CONDITIONS: dict[str, tuple[str, Callable[[EnvConfig, int], EnvConfig]]] = {
     "nominal": ("rough world at scale 1.0, nothing randomised", lambda base, level: base),
     "new maps": (
         f"terrain-levels map seed {HELD_OUT_MAP_SEED}, every kind, one level",
-        lambda base, level: _map(
+        lambda base, level: on_map(
             base, TerrainLevels(seed=HELD_OUT_MAP_SEED, start_level=level, curriculum=False)
         ),
     ),
     "rougher": (
         "rough tiles at 9.1 cm peak to peak (training's top: 7 cm)",
-        lambda base, level: _map(
+        lambda base, level: on_map(
             base,
             TerrainLevels(
                 seed=HELD_OUT_MAP_SEED + 1,
@@ -127,10 +136,17 @@ def read_rows(path: Path) -> list[Row]:
 
 
 def condition_config(
-    name: str, map_level: int = 6, max_steps: int = 1000, settle_steps: int = 500
+    name: str,
+    map_level: int = 6,
+    max_steps: int = 1000,
+    settle_steps: int = 500,
+    task: str = "residual_walk",
+    gait_action: str = "delta",
 ) -> EnvConfig:
-    """The episodes of condition ``name`` (the evaluation's: ``max_steps`` long after
-    ``settle_steps`` of settling; on a map at most MAP_SETTLE_STEPS).
+    """The episodes of condition ``name`` for a policy of ``task`` (and ``gait_action``,
+    ``evaluation.acts_in``) (the evaluation's:
+    ``max_steps`` long after ``settle_steps`` of settling; on a map at most
+    MAP_SETTLE_STEPS).
 
     Raises:
         ValueError: an unknown condition (listing them), or a level outside the map.
@@ -140,18 +156,32 @@ def condition_config(
     # Every episode's target is the gait's speed, offered as the piece ``command`` too: a
     # policy trained with commands reads it, the others do not (the same episodes).
     speed = EnvConfig().expected_velocity
-    base = presets.evaluation_config(max_steps=max_steps, settle_steps=settle_steps,
-                                     command_range=(speed, speed))  # fmt: skip
+    base = presets.evaluation_config(
+        task, max_steps=max_steps, settle_steps=settle_steps, command_range=(speed, speed),
+        gait_action=gait_action,
+    )  # fmt: skip
     return CONDITIONS[name][1](base, map_level)
 
 
 def run_condition(
-    name: str, policies: dict[str, Path | None], episodes: int, seed: int, config: EnvConfig
+    name: str,
+    policies: dict[str, Path | None],
+    episodes: int,
+    seed: int,
+    config: Callable[..., EnvConfig],
 ) -> list[Row]:
-    """Every policy (None: the base gait) on the same paired episodes of one condition."""
-    env = BatchedEnv(episodes, config, seed=seed)
+    """Every policy (None: the base gait, on the residual task) on the same paired episodes
+    of one condition, each on an env its policy acts in (``config(**evaluation.acts_in(
+    checkpoint))``): an adaptive and a residual policy meet the same terrain, physics draws
+    and kicks from the same starts."""
+    envs: dict[tuple, BatchedEnv] = {}
     rows = []
     for label, checkpoint in policies.items():
+        acts = {"task": "residual_walk"} if checkpoint is None else acts_in(checkpoint)
+        key = tuple(acts.items())
+        if key not in envs:
+            envs[key] = BatchedEnv(episodes, config(**acts), seed=seed, task=acts["task"])
+        env = envs[key]
         policy = None if checkpoint is None else load_policy(checkpoint, env)
         rows.append(Row(name, label, evaluate(label, env, seed, policy)))
     return rows
@@ -185,13 +215,16 @@ def table(rows: list[Row]) -> str:
             for p, v in floors([r for r in rows if r.condition == condition]).items()
         }
     lines = [
-        "| condition | policy | falls | forward velocity (m/s) | velocity error (m/s) | floors |",
+        "| condition | policy | falls (95% interval) | forward velocity (m/s) "
+        "| velocity error (m/s) | floors |",
         "| --- | --- | --- | --- | --- | --- |",
     ]
     for r in rows:
         e = r.evaluation
+        low, high = fall_interval(e)
         lines.append(
-            f"| {r.condition} | {r.policy} | {e.fall_rate:.0%} | {e.forward_velocity:.3f} | "
+            f"| {r.condition} | {r.policy} | {e.fall_rate:.0%} ({low:.0%}–{high:.0%}) | "
+            f"{e.forward_velocity:.3f} | "
             f"{e.velocity_error:.4f} ± {1.96 * e.velocity_error_se:.4f} | "
             f"{verdicts.get((r.condition, r.policy), '-')} |"
         )

@@ -41,6 +41,7 @@ from rwalk.config import EnvConfig
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.evaluation import (
     Evaluation,
+    acts_in,
     check_policy,
     evaluate,
     load_policy,
@@ -117,9 +118,11 @@ def commanded(args: argparse.Namespace) -> tuple[float, float] | None:
 def play(argv: list[str] | None = None) -> list[Evaluation]:
     """Run the command line ``argv``; returns its table's rows."""
     args = parse_args(argv)
+    acts = acts_in(args.checkpoint) if args.checkpoint else {"task": args.task}
     config = presets.evaluation_config(
-        args.task, args.terrain_scale, args.max_steps, args.settle_steps, commanded(args)
-    )
+        **acts, terrain_scale=args.terrain_scale, max_steps=args.max_steps,
+        settle_steps=args.settle_steps, command_range=commanded(args),
+    )  # fmt: skip
     env = BatchedEnv(args.episodes, config, seed=args.seed, task=args.task)
     env.core.settle_progress = Progress("settling starts", "physics steps", enabled=args.progress)
     recorder = None

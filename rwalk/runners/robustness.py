@@ -6,7 +6,8 @@
 
 Every row of a condition runs the same --episodes paired episodes: episode i
 starts like a single env seeded --seed + i, with the same drawn physics and the
-same kicks, whichever policy walks. The conditions, floors, table and plot are
+same kicks, whichever policy walks (a policy of either task: each walks on an env of its
+own task, the base gait on the residual task's). The conditions, floors, table and plot are
 ``rwalk.robustness``'s: nominal, new maps, rougher ground, low and high friction,
 payload, weak servos, pushes and latency. Prints one table per condition with
 each policy's floors, writes every row to --json and, with --plot, a bar chart.
@@ -20,6 +21,7 @@ import json
 from pathlib import Path
 
 from rwalk.cli import NATURAL_INT, POSITIVE_INT, command, one_line_errors
+from rwalk.config import EnvConfig
 from rwalk.evaluation import check_policy
 from rwalk.levels import TerrainLevels
 from rwalk.rl.checkpoints import atomic_write_text
@@ -78,13 +80,18 @@ def main(argv: list[str] | None = None) -> None:
             parser.error(f"--map-level: {error}")
         for label, path in args.checkpoint:  # every file, before any row runs
             try:
-                check_policy(path, "residual_walk")
+                check_policy(path)
             except (OSError, ValueError) as error:
                 parser.error(f"--checkpoint {label}: {error}")
         policies: dict[str, Path | None] = {"base gait": None, **dict(args.checkpoint)}
         rows = []
         for name in args.conditions:
-            config = condition_config(name, args.map_level, args.max_steps, args.settle_steps)
+
+            def config(name: str = name, **acts: str) -> EnvConfig:
+                return condition_config(
+                    name, args.map_level, args.max_steps, args.settle_steps, **acts
+                )
+
             rows += run_condition(name, policies, args.episodes, args.seed, config)
             print(table([r for r in rows if r.condition == name]).split("\n", 2)[2], flush=True)
         if args.json:
