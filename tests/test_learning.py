@@ -72,10 +72,28 @@ def test_recurrent_ppo_and_symmetry_train_and_play(tmp_path):
     assert "rnn.rnn.weight_hh_l0" in actor
 
 
+def test_one_command_trains_the_teacher_then_its_student(tmp_path, capsys):
+    folder = tmp_path / "run"
+    train.main([*TINY, "--teacher", "--max-iterations", "2", "--student-iterations", "3",
+                "--student-actor", "mlp", "--log-dir", str(folder)])  # fmt: skip
+    out = capsys.readouterr().out
+    assert f"distilling the teacher {folder / 'model_1.pt'}" in out
+    assert [it for it, _ in checkpoint_files(folder)] == [0, 1]
+    assert [it for it, _ in checkpoint_files(folder / "student")] == [0, 1, 2]
+    student = json.loads((folder / "student" / "config.json").read_text())["args"]
+    assert student["distill"] == str(folder) and student["actor"] == "mlp"
+    assert not student["teacher"] and student["student_iterations"] == 0
+    saved = load_checkpoint(folder / "student" / "model_2.pt")
+    assert saved["student_state_dict"]["mlp.0.weight"].shape[1] == 68  # blind
+    assert play.play(["--checkpoint", str(folder / "student" / "model_2.pt"), *PLAY])
+
+
 @pytest.mark.parametrize(
     ("flags", "message"),
     [
         (["--actor", "transformer"], "--actor must be one of mlp, gru, lstm, got 'transformer'"),
+        (["--teacher", "--student-actor", "cnn"], "--student-actor must be one of"),
+        (["--student-iterations", "5"], "--student-iterations needs --teacher"),
         (["--symmetry", "--actor", "gru"], "--symmetry needs --actor mlp"),
         (["--symmetry", "--distill", "x.pt"], "--symmetry and --distill do not go together"),
         (["--teacher", "--distill", "x.pt"], "--teacher and --distill do not go together"),

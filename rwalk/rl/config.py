@@ -74,7 +74,8 @@ class RunConfig:
     max_iterations: int = 300
     """iterations in total, counting those of --resume"""
     max_minutes: float = math.inf
-    """stop at a checkpoint after this much wall time"""
+    """stop at a checkpoint after this much wall time (with --student-iterations: each
+    stage's)"""
     save_interval: int = 25
     """save a checkpoint when the iteration is a multiple of this, and at the end"""
     threads: int = 0
@@ -149,13 +150,25 @@ class TrainConfig:
     symmetry: bool = False
     """augment PPO's minibatches with the left-right mirrored states and actions
     (rsl-rl's symmetry augmentation; an MLP actor only)"""
+    student_iterations: int = 0
+    """with --teacher: when the teacher is trained, distil it into a blind student for this
+    many iterations in LOG_DIR/student (both stages in one command; an interrupted student
+    goes on with --resume LOG_DIR/student)"""
+    student_actor: str = "gru"
+    """--student-iterations: the student's model (mlp, gru, lstm)"""
 
     def __post_init__(self) -> None:
-        if self.actor not in ACTORS:
-            raise ValueError(f"--actor must be one of {', '.join(ACTORS)}, got {self.actor!r}")
+        for name in ("actor", "student_actor"):
+            if getattr(self, name) not in ACTORS:
+                raise ValueError(f"{flag(name)} must be one of {', '.join(ACTORS)}, got "
+                                 f"{getattr(self, name)!r}")  # fmt: skip
         require_at_least(self, 1, "rnn_hidden_dim", "gradient_length")
+        require_at_least(self, 0, "student_iterations")
         require_at_most(self, MAX_WIDTH, "rnn_hidden_dim")
-        require_at_most(self, MAX_ITERATIONS, "gradient_length")
+        require_at_most(self, MAX_ITERATIONS, "gradient_length", "student_iterations")
+        if self.student_iterations and not self.teacher:
+            raise ValueError("--student-iterations needs --teacher: the student is distilled "
+                             "from the teacher this run trains")  # fmt: skip
         if self.symmetry and self.actor != "mlp":
             raise ValueError(
                 f"--symmetry needs --actor mlp (rsl-rl's symmetry augmentation refuses "

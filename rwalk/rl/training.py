@@ -238,9 +238,24 @@ def train(args, given: frozenset[str] | None = None) -> Path:
     distributed.join(group, args.dist_timeout)
     try:
         distributed.check_same_settings(group, run_settings(args))
-        return _train(args, given, group, clock)
+        checkpoint, args = _train(args, given, group, clock)
+        if args.student_iterations:
+            checkpoint, _ = _train(student_args(args), None, group, time.perf_counter())
+        return checkpoint
     finally:
         distributed.leave()
+
+
+def student_args(teacher):
+    """The flags of the student stage of ``teacher`` (a run with --student-iterations):
+    distil LOG_DIR's teacher into a --student-actor model in LOG_DIR/student, for
+    --student-iterations iterations, with the teacher's world, PPO settings and
+    --overwrite."""
+    return dataclasses.replace(
+        teacher, teacher=False, distill=teacher.log_dir, actor=teacher.student_actor,
+        student_iterations=0, symmetry=False, resume="", max_iterations=teacher.student_iterations,
+        log_dir=str(Path(teacher.log_dir) / "student"),
+    )  # fmt: skip
 
 
 class Setup(NamedTuple):
@@ -298,7 +313,8 @@ def _claim_run(args, given, group: distributed.Group, stack: contextlib.ExitStac
     )  # fmt: skip
 
 
-def _train(args, given, group: distributed.Group, clock: float) -> Path:
+def _train(args, given, group: distributed.Group, clock: float) -> tuple[Path, Any]:
+    """One run (a stage): returns its last checkpoint and the flags it trained on."""
     say = print if group.main else lambda *_, **__: None  # rank 0 speaks for the group
     log_dir = Path(args.log_dir)
     with contextlib.ExitStack() as stack:  # rank 0 holds the lock until the run ends
@@ -342,7 +358,7 @@ def _train(args, given, group: distributed.Group, clock: float) -> Path:
         if args.export and group.main:
             jit_path, onnx_path = export_policy(runner, log_dir / "exported")
             print(f"[rwalk] exported {jit_path} and {onnx_path} (layout: policy.json)")
-    return checkpoint
+    return checkpoint, args
 
 
 def _learn(args, runner: SafeRunner, group: distributed.Group, clock: float) -> Path:
