@@ -27,6 +27,7 @@ def plot(
     base: dict | None = None,
     by_iteration: bool = False,
     title: str | None = None,
+    paces: dict[str, float] | None = None,
 ) -> None:
     """Draw the panels of ``runs`` (name -> scalars) and save the PNG at ``path``.
 
@@ -35,6 +36,8 @@ def plot(
         by_iteration: x axis in PPO iterations; else wall-clock minutes since each
             run's first scalar.
         title: the figure's title; None = ``Training (<run names>)``.
+        paces: seconds per iteration of each run (name -> s), measured alone: the x axis
+            is then iteration x pace in minutes, for runs whose own clocks shared the cores.
     """
     import matplotlib
 
@@ -49,6 +52,8 @@ def plot(
                 continue
             if by_iteration:
                 x = [step for step, _, _ in values]
+            elif paces is not None:
+                x = [step * paces[name] / 60 for step, _, _ in values]
             else:
                 start = min(v[0][1] for v in series.values() if v)
                 x = [(t - start) / 60 for _, t, _ in values]
@@ -57,7 +62,10 @@ def plot(
             ax.axhline(base[base_key], color="k", ls="--", lw=1, label="base gait (evaluated)")
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8)
-        ax.set(xlabel="PPO iteration" if by_iteration else "wall-clock minutes", ylabel=label)
+        xlabel = "PPO iteration" if by_iteration else "wall-clock minutes"
+        if paces is not None and not by_iteration:
+            xlabel = "minutes at the pace measured alone"
+        ax.set(xlabel=xlabel, ylabel=label)
         ax.grid(alpha=0.3)
     fig.suptitle(title or f"Training ({', '.join(runs)})")
     fig.tight_layout()

@@ -185,3 +185,23 @@ def test_plot_training_overlays_runs_by_iteration(trained, tmp_path):
 def test_walk_demo_prints_the_speed():
     out = run("rwalk.runners.walk_demo", "--envs", "2", "--seconds", "1")
     assert "forward speed" in out and "expected 0.1333" in out
+
+
+def test_plot_training_puts_runs_at_their_measured_paces(trained, tmp_path, monkeypatch, capsys):
+    import matplotlib.axes
+
+    from rwalk.runners.plot_training import main
+
+    drawn = []
+    original = matplotlib.axes.Axes.plot
+
+    def plot(self, x, *args, **kwargs):
+        drawn.append(list(x))
+        return original(self, x, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", plot)
+    main([str(trained), "--paces", "3", "--out", str(tmp_path / "p.png")])
+    assert drawn and all(x == [0.0, 0.05] for x in drawn)  # iterations 0, 1 at 3 s each
+    with pytest.raises(SystemExit) as exit_:
+        main([str(trained), str(trained), "--paces", "3", "--out", str(tmp_path / "q.png")])
+    assert exit_.value.code == 2 and "--paces needs one number" in capsys.readouterr().err
