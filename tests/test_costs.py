@@ -11,7 +11,6 @@ import torch
 
 from rwalk import AdaptiveGaitConfig, Core, EnvConfig, GaitCosts, GaitParameters
 from rwalk.constants import OBS_CONTACT, OBS_JOINT_VEL
-from rwalk.envs.single_step import SingleStep
 from rwalk.observations import foot_velocities
 from rwalk.presets import TrainingEnv
 from rwalk.rewards import MID_SWING, clearance_shortfall, foot_slip, servo_power
@@ -126,10 +125,8 @@ def test_the_sensed_phase_is_the_phase_of_the_reported_swing_flags():
         assert abs(float(a - b)) < 1e-9 or abs(abs(float(a - b)) - 1.0) < 1e-9
 
 
-def test_costs_need_the_batched_pipeline_and_the_spec_s_env_has_none():
+def test_the_spec_s_envs_have_no_costs_and_training_adds_them_on_request():
     assert EnvConfig().costs is None and AdaptiveGaitConfig().costs is None
-    assert not SingleStep.supports(_core(n=1))
-    assert SingleStep.supports(Core(EnvConfig(model_path=FLAT, settle_steps=10), 1))
     assert TrainingEnv().config().costs is None
     assert TrainingEnv(costs=True).config().costs == GaitCosts()
 

@@ -6,21 +6,25 @@ import numpy as np
 import pytest
 import torch
 
-from rwalk import EnvConfig, ResidualWalkEnv
+from rwalk import EnvConfig, GaitCosts, ResidualWalkEnv
 from rwalk.core import ResidualWalkCore
 from rwalk.envs.single_step import SingleStep
-from rwalk.rewards import TERM_NAMES
 
 # Large residuals make falls (terminations) common; short episodes add truncations.
 CONFIG = EnvConfig(residual_scale=0.06, max_episode_steps=90, settle_steps=10, randomize=True)
 
 
-@pytest.mark.parametrize("world", ["model/world_train.xml", "model/world_flat.xml"])
-def test_single_step_is_env_i_of_the_batched_step_bit_for_bit(world):
-    config = dataclasses.replace(CONFIG, model_path=world)
+@pytest.mark.parametrize(
+    ("world", "costs"),
+    [("model/world_train.xml", None), ("model/world_flat.xml", None),
+     ("model/world_train.xml", GaitCosts())],  # terms that read the core's parts
+)  # fmt: skip
+def test_single_step_is_env_i_of_the_batched_step_bit_for_bit(world, costs):
+    config = dataclasses.replace(CONFIG, model_path=world, costs=costs)
     seed, n, i = 5, 3, 2
     batch = ResidualWalkCore(config, n, seed=seed)
     single = ResidualWalkEnv(config=config, seed=seed + i)
+    assert SingleStep.supports(single.core)
     batch.reset()
     single.reset()
     core = single.core
@@ -39,7 +43,7 @@ def test_single_step_is_env_i_of_the_batched_step_bit_for_bit(world):
         assert (terminated, truncated) == (want.terminated[i].item(), want.truncated[i].item())
         assert info["phase"] == batch.phase[i].item()
         assert info["lateral_offset"] == (batch.obs[i, 1] - batch.y0[i]).item()
-        for name in (*TERM_NAMES,):
+        for name in batch.episode_sums:
             assert torch.equal(core.episode_sums[name][0], batch.episode_sums[name][i])
         for name in ("tick", "episode_step", "walked_steps", "episode_distance"):
             assert torch.equal(getattr(core, name)[0], getattr(batch, name)[i]), name

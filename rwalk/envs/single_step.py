@@ -61,11 +61,8 @@ class SingleStep:
     @staticmethod
     def supports(core: Core) -> bool:
         """Whether ``SingleStep`` can step ``core``: one env of a task with a float
-        pipeline (``Task.single_step``: the residual task), without velocity commands or
-        gait costs."""
-        cfg = core.config
-        return (core.num_envs == 1 and core.task.single_step and cfg.command_range is None
-                and cfg.costs is None)  # fmt: skip
+        pipeline (``Task.single_step``: the residual task), without velocity commands."""
+        return core.num_envs == 1 and core.task.single_step and core.config.command_range is None
 
     def __init__(self, core: Core) -> None:
         if core.num_envs != 1:
