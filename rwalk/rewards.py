@@ -23,7 +23,9 @@ import torch
 from torch import Tensor
 
 from rwalk import arrayops, exactmath
+from rwalk.constants import OBS_CONTACT, OBS_JOINT_VEL
 from rwalk.kinematics import LegGeometry
+from rwalk.observations import HEIGHT_OFFSETS, foot_clearances, foot_velocities
 
 
 @dataclass(frozen=True)
@@ -248,6 +250,37 @@ def spec_terms(weights: RewardWeights) -> tuple[RewardTerm, ...]:
         RewardTerm("stability", weights.stability, lambda s: stability(s.rpy)),
         RewardTerm("lateral", weights.lateral, lambda s: lateral(s.y, s.y0)),
     )  # fmt: skip
+
+
+def cost_terms(costs: GaitCosts, world) -> tuple[RewardTerm, ...]:
+    """The terms of ``costs``, each weighted by minus its size, for the tasks of ``world``
+    (``rwalk.world.World``: leg geometry, gait controller): swing clearance (each leg's
+    swing progress at the sensed substep, from the task's ``sensed_phase``), foot slip and
+    servo power (the last substep's torques, computed with its sensors)."""
+    radius = world.geometry.foot_radius
+    controller = world.controller
+    duty = controller.params.duty_factor
+    samples = len(HEIGHT_OFFSETS)
+
+    def clearance(s: StepState) -> Tensor:
+        heights = foot_clearances(s.sources.sensors, s.sources.terrain).view(-1, 4, samples)
+        passing = torch.minimum(heights[..., 0], heights[..., 1]) - radius  # under, ahead
+        progress = (controller.leg_phases(s.sources.task.sensed_phase) - duty) / (1.0 - duty)
+        return clearance_shortfall(passing, progress, costs.clearance_target)
+
+    def slip(s: StepState) -> Tensor:
+        contact = s.sources.sensors[:, OBS_CONTACT] > 0.5
+        return foot_slip(contact, foot_velocities(s.sources.sensors))
+
+    def power(s: StepState) -> Tensor:
+        torque = torch.from_numpy(s.sources.sim.actuator_force)
+        return servo_power(torque, s.sources.sensors[:, OBS_JOINT_VEL])
+
+    return (
+        RewardTerm("clearance", -costs.clearance, clearance),
+        RewardTerm("slip", -costs.slip, slip),
+        RewardTerm("power", -costs.power, power),
+    )
 
 
 #: Names of the spec's reward terms, in the order they are reported.

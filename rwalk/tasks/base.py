@@ -22,25 +22,9 @@ from torch import Tensor
 
 from rwalk import rng
 from rwalk.config import EnvConfig
-from rwalk.constants import OBS_CONTACT, OBS_JOINT_VEL
 from rwalk.mirror import Mirror
-from rwalk.observations import (
-    COMMON_PIECES,
-    HEIGHT_OFFSETS,
-    PRIVILEGED_PIECES,
-    ObsPiece,
-    foot_clearances,
-    foot_velocities,
-    piece_catalog,
-)
-from rwalk.rewards import (
-    GaitCosts,
-    RewardTerm,
-    clearance_shortfall,
-    foot_slip,
-    servo_power,
-    spec_terms,
-)
+from rwalk.observations import COMMON_PIECES, PRIVILEGED_PIECES, ObsPiece, piece_catalog
+from rwalk.rewards import RewardTerm, cost_terms, spec_terms
 from rwalk.world import World
 
 #: Random stream of the per-episode velocity commands (see ``rwalk.rng``).
@@ -106,34 +90,8 @@ class Task:
         """The reward's terms, in the order they are added and reported: the spec's, then
         the gait costs when the config has them."""
         costs = self.config.costs
-        return spec_terms(self.config.reward_weights) + (() if costs is None else
-                                                          self.cost_terms(costs))  # fmt: skip
-
-    def cost_terms(self, costs: GaitCosts) -> tuple[RewardTerm, ...]:
-        """The terms of ``costs`` (``rwalk.rewards.GaitCosts``), each weighted by minus its
-        size: swing clearance (the sensed substep's swing progress from ``sensed_phase``),
-        foot slip and servo power (the last substep's torques, at the sensors' instant)."""
-        radius = self.world.geometry.foot_radius
-        controller = self.world.controller
-        duty = controller.params.duty_factor
-        samples = len(HEIGHT_OFFSETS)
-
-        def clearance(s) -> Tensor:
-            heights = foot_clearances(s.sources.sensors, s.sources.terrain).view(-1, 4, samples)
-            passing = torch.minimum(heights[..., 0], heights[..., 1]) - radius  # under, ahead
-            progress = (controller.leg_phases(s.sources.task.sensed_phase) - duty) / (1.0 - duty)
-            return clearance_shortfall(passing, progress, costs.clearance_target)
-
-        def power(s) -> Tensor:
-            torque = torch.from_numpy(s.sources.sim.actuator_force)
-            return servo_power(torque, s.sources.sensors[:, OBS_JOINT_VEL])
-
-        return (
-            RewardTerm("clearance", -costs.clearance, clearance),
-            RewardTerm("slip", -costs.slip, lambda s: foot_slip(
-                s.sources.sensors[:, OBS_CONTACT] > 0.5, foot_velocities(s.sources.sensors))),
-            RewardTerm("power", -costs.power, power),
-        )  # fmt: skip
+        extra = () if costs is None else cost_terms(costs, self.world)
+        return spec_terms(self.config.reward_weights) + extra
 
     @classmethod
     def action_mirror(cls) -> Mirror:
