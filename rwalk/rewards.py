@@ -28,6 +28,20 @@ from rwalk.kinematics import LegGeometry
 from rwalk.observations import HEIGHT_OFFSETS, foot_clearances, foot_velocities
 
 
+def _require_finite_numbers(config: object) -> None:
+    """Raise ValueError naming ``Class.field`` for a field that is not a finite number."""
+    for f in fields(config):
+        value = getattr(config, f.name)
+        if (
+            not isinstance(value, (int, float))
+            or isinstance(value, bool)
+            or not math.isfinite(value)
+        ):
+            raise ValueError(
+                f"{type(config).__name__}.{f.name} must be a finite number, got {value!r}"
+            )
+
+
 @dataclass(frozen=True)
 class RewardWeights:
     """Weights of the spec's reward terms."""
@@ -46,14 +60,7 @@ class RewardWeights:
     """Per-leg score otherwise."""
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if (
-                not isinstance(value, (int, float))
-                or isinstance(value, bool)
-                or not math.isfinite(value)
-            ):
-                raise ValueError(f"RewardWeights.{f.name} must be a finite number, got {value!r}")
+        _require_finite_numbers(self)
 
 
 #: Fraction of a swing, from its lift-off (0) to its touch-down (1), over which the
@@ -82,14 +89,7 @@ class GaitCosts:
     """Per watt of mechanical servo power, sum over joints of |torque x joint speed|."""
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if (
-                not isinstance(value, (int, float))
-                or isinstance(value, bool)
-                or not math.isfinite(value)
-            ):
-                raise ValueError(f"GaitCosts.{f.name} must be a finite number, got {value!r}")
+        _require_finite_numbers(self)
         for name in ("clearance", "slip", "power"):
             if getattr(self, name) < 0:
                 raise ValueError(
