@@ -1,20 +1,39 @@
 """rwalk: a massively-parallel CPU RL environment for residual corrections on a
 Bézier trot of a small MuJoCo quadruped."""
 
-from rwalk.assets import load_model, resolve_model_path, validate_model
-from rwalk.config import EnvConfig
-from rwalk.core import Core, ResidualWalkCore, StepResult
-from rwalk.envs import AdaptiveGaitEnv, ResidualWalkEnv
-from rwalk.gait import BezierGaitController, GaitParameters
-from rwalk.kinematics import LegGeometry, leg_fk, leg_ik
-from rwalk.levels import TerrainLevels
-from rwalk.observations import ObservationNoise
-from rwalk.perturbations import Pushes
-from rwalk.physics import Physics
-from rwalk.randomization import Randomization
-from rwalk.rewards import GaitCosts, RewardWeights
-from rwalk.sim import BatchedSim
-from rwalk.tasks import TASKS, AdaptiveGaitConfig, GaitBounds, get_task
+# Everything is imported on first use (PEP 562): ``import rwalk.deploy`` runs where
+# torch is absent, and the TorchRL views load torchrl only when asked for (importing
+# torchrl switches the process's multiprocessing start method to spawn).
+_HOMES = {
+    "load_model": "rwalk.assets",
+    "resolve_model_path": "rwalk.assets",
+    "validate_model": "rwalk.assets",
+    "EnvConfig": "rwalk.config",
+    "Core": "rwalk.core",
+    "ResidualWalkCore": "rwalk.core",
+    "StepResult": "rwalk.core",
+    "AdaptiveGaitEnv": "rwalk.envs.gym_env",
+    "ResidualWalkEnv": "rwalk.envs.gym_env",
+    "AdaptiveGaitVecEnv": "rwalk.envs.torchrl_env",
+    "ResidualWalkVecEnv": "rwalk.envs.torchrl_env",
+    "BezierGaitController": "rwalk.gait",
+    "GaitParameters": "rwalk.gait",
+    "LegGeometry": "rwalk.kinematics",
+    "leg_fk": "rwalk.kinematics",
+    "leg_ik": "rwalk.kinematics",
+    "TerrainLevels": "rwalk.levels",
+    "ObservationNoise": "rwalk.observations",
+    "Pushes": "rwalk.perturbations",
+    "Physics": "rwalk.physics",
+    "Randomization": "rwalk.randomization",
+    "GaitCosts": "rwalk.rewards",
+    "RewardWeights": "rwalk.rewards",
+    "BatchedSim": "rwalk.sim",
+    "TASKS": "rwalk.tasks",
+    "AdaptiveGaitConfig": "rwalk.tasks",
+    "GaitBounds": "rwalk.tasks",
+    "get_task": "rwalk.tasks",
+}
 
 __all__ = [
     "TASKS",
@@ -52,17 +71,18 @@ ADAPTIVE_GYM_ID = "rwalk/AdaptiveGait-v0"
 
 
 def __getattr__(name: str):
-    # The TorchRL view loads torchrl on first use only: importing torchrl switches the
-    # process's multiprocessing start method to spawn, which `import rwalk` must not do.
-    if name in ("ResidualWalkVecEnv", "AdaptiveGaitVecEnv"):
-        from rwalk.envs import torchrl_env as vec_env
+    if name in _HOMES:
+        import importlib
 
-        return getattr(vec_env, name)
+        return getattr(importlib.import_module(_HOMES[name]), name)
     raise AttributeError(f"module 'rwalk' has no attribute {name!r}")
 
 
 def _register() -> None:
-    import gymnasium
+    try:
+        import gymnasium
+    except ImportError:  # a robot's runtime (rwalk.deploy) needs no Gymnasium
+        return
 
     views = {GYM_ID: "ResidualWalkEnv", ADAPTIVE_GYM_ID: "AdaptiveGaitEnv"}
     for env_id, view in views.items():

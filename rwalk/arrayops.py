@@ -25,10 +25,15 @@ import operator
 from typing import Any
 
 import numpy as np
-import torch
-from torch import Tensor
 
-F64 = torch.float64
+try:
+    import torch
+    from torch import Tensor
+except ImportError:  # rwalk.deploy runs where torch is absent: numpy arrays and floats only
+    torch = None
+    Tensor = ()  # isinstance(x, ()) is always False
+
+F64 = torch.float64 if torch is not None else None
 
 
 class Table:
@@ -46,75 +51,80 @@ class Table:
         return tuple(torch.tensor(column, dtype=F64, device=device) for column in columns)
 
 
-def _ieee_sqrt(x: Tensor) -> Tensor:
-    """Correctly rounded sqrt. torch.sqrt of float64 on the CPU goes through MKL's vector
-    math, which rounds ~1% of results the other way (and may pick its code by CPU);
-    numpy's is the CPU's sqrt instruction, which IEEE-754 requires to round correctly."""
-    if x.device.type != "cpu" or x.requires_grad or x.dtype != F64:
-        return torch.sqrt(x)  # not covered: exactness is a CPU, float64, no-grad promise
-    return torch.from_numpy(np.asarray(np.sqrt(x.numpy())))  # a 0-d result is a scalar
+if torch is not None:  # the batched core's namespace
 
+    def _ieee_sqrt(x: Tensor) -> Tensor:
+        """Correctly rounded sqrt. torch.sqrt of float64 on the CPU goes through MKL's vector
+        math, which rounds ~1% of results the other way (and may pick its code by CPU);
+        numpy's is the CPU's sqrt instruction, which IEEE-754 requires to round correctly."""
+        if x.device.type != "cpu" or x.requires_grad or x.dtype != F64:
+            return torch.sqrt(x)  # not covered: exactness is a CPU, float64, no-grad promise
+        return torch.from_numpy(np.asarray(np.sqrt(x.numpy())))  # a 0-d result is a scalar
 
-class TorchOps:
-    """Functions on torch tensors (float64 unless said)."""
+    class TorchOps:
+        """Functions on torch tensors (float64 unless said)."""
 
-    sqrt = staticmethod(_ieee_sqrt)
-    floor = staticmethod(torch.floor)
-    maximum = staticmethod(torch.maximum)
-    minimum = staticmethod(torch.minimum)
-    copysign = staticmethod(torch.copysign)
-    signbit = staticmethod(torch.signbit)
+        sqrt = staticmethod(_ieee_sqrt)
+        floor = staticmethod(torch.floor)
+        where = staticmethod(torch.where)
+        maximum = staticmethod(torch.maximum)
+        minimum = staticmethod(torch.minimum)
+        copysign = staticmethod(torch.copysign)
+        signbit = staticmethod(torch.signbit)
 
-    @staticmethod
-    def as_f64(x: Any) -> Tensor:
-        return torch.as_tensor(x, dtype=F64)
+        @staticmethod
+        def as_f64(x: Any) -> Tensor:
+            return torch.as_tensor(x, dtype=F64)
 
-    @staticmethod
-    def broadcast(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
-        return torch.broadcast_tensors(a, b)  # type: ignore[return-value]
+        @staticmethod
+        def broadcast(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
+            return torch.broadcast_tensors(a, b)  # type: ignore[return-value]
 
-    @staticmethod
-    def clamp(x: Tensor, low: Any = None, high: Any = None) -> Tensor:
-        return torch.clamp(x, low, high)
+        @staticmethod
+        def clamp(x: Tensor, low: Any = None, high: Any = None) -> Tensor:
+            return torch.clamp(x, low, high)
 
-    @staticmethod
-    def nan_to(x: Tensor, value: float) -> Tensor:
-        """x with NaN replaced by value; overwrites x (pass a temporary)."""
-        return x.nan_to_num_(nan=value)
+        @staticmethod
+        def nan_to(x: Tensor, value: float) -> Tensor:
+            """x with NaN replaced by value; overwrites x (pass a temporary)."""
+            return x.nan_to_num_(nan=value)
 
-    @staticmethod
-    def as_float(flags: Tensor) -> Tensor:
-        return flags.to(F64)
+        @staticmethod
+        def as_float(flags: Tensor) -> Tensor:
+            return flags.to(F64)
 
-    @staticmethod
-    def not_equal(a: Tensor, b: Tensor) -> Tensor:
-        return a != b
+        @staticmethod
+        def not_equal(a: Tensor, b: Tensor) -> Tensor:
+            return a != b
 
-    @staticmethod
-    def select(flags: Tensor, if_true: float, if_false: float) -> Tensor:
-        values = torch.tensor([if_false, if_true], dtype=F64, device=flags.device)
-        return values[flags.long()]
+        @staticmethod
+        def select(flags: Tensor, if_true: float, if_false: float) -> Tensor:
+            values = torch.tensor([if_false, if_true], dtype=F64, device=flags.device)
+            return values[flags.long()]
 
-    @staticmethod
-    def lookup(table: Table, index: Tensor) -> tuple[Tensor, ...]:
-        """Columns of the rows at float indices. Each shape: index's."""
-        rows = index.long().flatten()
-        return tuple(
-            column.index_select(0, rows).reshape(index.shape)
-            for column in table.tensors(index.device)
-        )
+        @staticmethod
+        def lookup(table: Table, index: Tensor) -> tuple[Tensor, ...]:
+            """Columns of the rows at float indices. Each shape: index's."""
+            rows = index.long().flatten()
+            return tuple(
+                column.index_select(0, rows).reshape(index.shape)
+                for column in table.tensors(index.device)
+            )
 
-    @staticmethod
-    def stack(items: tuple[Tensor, ...] | list[Tensor], axis: int = -1) -> Tensor:
-        return torch.stack(tuple(items), dim=axis)
+        @staticmethod
+        def stack(items: tuple[Tensor, ...] | list[Tensor], axis: int = -1) -> Tensor:
+            return torch.stack(tuple(items), dim=axis)
 
-    @staticmethod
-    def unstack(x: Tensor) -> tuple[Tensor, ...]:
-        return x.unbind(-1)
+        @staticmethod
+        def unstack(x: Tensor) -> tuple[Tensor, ...]:
+            return x.unbind(-1)
 
-    @staticmethod
-    def all_last(x: Tensor) -> Tensor:
-        return x.all(dim=-1)
+        @staticmethod
+        def all_last(x: Tensor) -> Tensor:
+            return x.all(dim=-1)
+
+else:
+    TorchOps = None  # no torch: nothing is a tensor
 
 
 class NumpyOps:
@@ -122,6 +132,7 @@ class NumpyOps:
 
     sqrt = staticmethod(np.sqrt)
     floor = staticmethod(np.floor)
+    where = staticmethod(np.where)
     maximum = staticmethod(np.maximum)
     minimum = staticmethod(np.minimum)
     copysign = staticmethod(np.copysign)

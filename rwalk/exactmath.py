@@ -42,10 +42,8 @@ from __future__ import annotations
 
 import math
 
-import torch
-from torch import Tensor
-
 from rwalk import arrayops
+from rwalk.arrayops import Tensor
 
 #: Largest |x| for which sin and cos are accurate; beyond it they return NaN.
 SIN_COS_LIMIT = math.ldexp(1.0, 20) * 1.5707963267948966
@@ -98,7 +96,6 @@ _SIN = tuple((-1) ** (k + 1) / math.factorial(2 * k + 3) for k in range(8))
 _COS = tuple((-1) ** (k + 1) / math.factorial(2 * k + 2) for k in range(8))
 _ATAN = tuple((-1) ** (k + 1) / (2 * k + 3) for k in range(6))
 
-F64 = torch.float64
 #: Smallest positive double (denominator floor: 0/0 becomes 0/_TINY = 0).
 _TINY = 5e-324
 
@@ -135,8 +132,12 @@ _OCTANT_HI, _OCTANT_LO, _OCTANT_SIGN = _octant_tables()
 _OCTANT = arrayops.Table(tuple(zip(_OCTANT_SIGN, _OCTANT_LO, _OCTANT_HI, strict=True)))
 
 
-def _as_f64(x: Tensor | float) -> Tensor:
-    return torch.as_tensor(x, dtype=F64)
+def _as_f64(x):
+    """x as float64 in its own kind of array (a float or a tuple: a numpy array)."""
+    xp = arrayops.of(x)
+    if xp is arrayops.FloatOps:
+        xp = arrayops.NumpyOps
+    return xp, xp.as_f64(x)
 
 
 def _horner(s, coeffs: tuple[float, ...]):
@@ -150,38 +151,40 @@ def _horner(s, coeffs: tuple[float, ...]):
 
 
 def _sin_cos(x: Tensor) -> tuple[Tensor, Tensor]:
-    x = _as_f64(x)
+    xp, x = _as_f64(x)
     # Reduce: x = k π/2 + r, |r| <= π/4 (a hair more where x * 2/π rounds up).
-    k = torch.floor(x * _TWO_OVER_PI + 0.5)
+    k = xp.floor(x * _TWO_OVER_PI + 0.5)
     r = x - k * _PIO2_C1
     r = r - k * _PIO2_C2
     r = r - k * _PIO2_C3
-    quadrant = k - torch.floor(k * 0.25) * 4.0  # k mod 4, exact
+    quadrant = k - xp.floor(k * 0.25) * 4.0  # k mod 4, exact
     s = r * r
     sin_r = r * s
     sin_r = sin_r * _horner(s, _SIN)
     sin_r = r + sin_r
-    sin_r = torch.where(r == 0, r, sin_r)  # keep the sign of zero
+    sin_r = xp.where(r == 0, r, sin_r)  # keep the sign of zero
     cos_r = s * _horner(s, _COS)
     cos_r = cos_r + 1.0
     odd = (quadrant == 1.0) | (quadrant == 3.0)
-    sin = torch.where(odd, cos_r, sin_r)
-    cos = torch.where(odd, sin_r, cos_r)
-    sin = torch.where(quadrant >= 2.0, -sin, sin)
-    cos = torch.where((quadrant == 1.0) | (quadrant == 2.0), -cos, cos)
-    outside = ~(x.abs() <= SIN_COS_LIMIT)  # also NaN and ±inf
-    sin = torch.where(outside, math.nan, sin)
-    cos = torch.where(outside, math.nan, cos)
+    sin = xp.where(odd, cos_r, sin_r)
+    cos = xp.where(odd, sin_r, cos_r)
+    sin = xp.where(quadrant >= 2.0, -sin, sin)
+    cos = xp.where((quadrant == 1.0) | (quadrant == 2.0), -cos, cos)
+    outside = ~(abs(x) <= SIN_COS_LIMIT)  # also NaN and ±inf
+    sin = xp.where(outside, math.nan, sin)
+    cos = xp.where(outside, math.nan, cos)
     return sin, cos
 
 
-def sin(x: Tensor) -> Tensor:
-    """sin x, float64, same shape; NaN where |x| > SIN_COS_LIMIT or x is not finite."""
+def sin(x):
+    """sin x of a tensor or a numpy array (the same bits), float64, same shape; NaN where
+    |x| > SIN_COS_LIMIT or x is not finite."""
     return _sin_cos(x)[0]
 
 
-def cos(x: Tensor) -> Tensor:
-    """cos x, float64, same shape; NaN where |x| > SIN_COS_LIMIT or x is not finite."""
+def cos(x):
+    """cos x of a tensor or a numpy array (the same bits), float64, same shape; NaN where
+    |x| > SIN_COS_LIMIT or x is not finite."""
     return _sin_cos(x)[1]
 
 

@@ -18,12 +18,10 @@ import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
-import mujoco
 import numpy as np
-import torch
-from torch import Tensor
 
 from rwalk import arrayops, exactmath
+from rwalk.arrayops import Tensor, torch
 from rwalk.constants import LEG_NAMES, TORSO_BODY
 
 
@@ -52,7 +50,9 @@ class LegGeometry:
     """Upper limits of (abduction, hip, knee). Radians."""
 
     @classmethod
-    def from_model(cls, model: mujoco.MjModel) -> LegGeometry:
+    def from_model(cls, model) -> LegGeometry:
+        """Read the geometry from a compiled ``mujoco.MjModel`` (robot.xml's naming)."""
+
         """Read the geometry from a compiled model (robot.xml's naming)."""
 
         def body_pos(name: str) -> np.ndarray:
@@ -92,15 +92,15 @@ class LegGeometry:
         """Hip-to-foot distance in the leg plane at the most folded allowed knee."""
         return _knee_reach(self, self.joint_lower[2])
 
-    def hip_tensor(self, dtype: torch.dtype = torch.float64) -> Tensor:
-        """Hip points as a tensor. Shape: (4, 3)."""
-        return torch.tensor(self.hip_positions, dtype=dtype)
+    def hip_tensor(self, dtype=None) -> Tensor:
+        """Hip points as a tensor (float64 unless ``dtype``). Shape: (4, 3)."""
+        return torch.tensor(self.hip_positions, dtype=dtype or torch.float64)
 
 
 def _knee_reach(geometry: LegGeometry, knee: float) -> float:
     # exactmath's cos (math.cos is the platform's libm); Python's float + x sqrt are IEEE.
     l1, l2 = geometry.thigh_length, geometry.shin_length
-    cos_knee = float(exactmath.cos(torch.tensor(knee, dtype=torch.float64)))
+    cos_knee = float(exactmath.cos(np.array(knee)))
     return math.sqrt(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * cos_knee)
 
 
@@ -123,13 +123,13 @@ class _Constants(NamedTuple):
 @functools.lru_cache(maxsize=16)
 def _constants(geometry: LegGeometry, kind: str) -> _Constants:
     """The IK's constants as torch tensors or numpy arrays (cached: built once)."""
-    offset = torch.tensor(geometry.abduction_offsets, dtype=torch.float64)
-    lower = torch.tensor(geometry.joint_lower, dtype=torch.float64)
-    upper = torch.tensor(geometry.joint_upper, dtype=torch.float64)
-    values = (offset, offset * offset, offset.abs() * (1.0 + 1e-9), lower, upper,
+    offset = np.array(geometry.abduction_offsets, dtype=np.float64)
+    lower = np.array(geometry.joint_lower, dtype=np.float64)
+    upper = np.array(geometry.joint_upper, dtype=np.float64)
+    values = (offset, offset * offset, abs(offset) * (1.0 + 1e-9), lower, upper,
               lower - 1e-9, upper + 1e-9)  # fmt: skip
-    if kind == "numpy":
-        values = tuple(v.numpy() for v in values)
+    if kind == "torch":
+        values = tuple(torch.from_numpy(v) for v in values)
     return _Constants(*values, near=geometry.min_knee_reach, far=geometry.max_knee_reach)
 
 
