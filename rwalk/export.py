@@ -35,6 +35,7 @@ policy keeps its state itself for one env (``reset()`` at an episode's start).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import json
 import logging
@@ -161,15 +162,18 @@ class _LstmOnnx(_GruOnnx):
 
 
 def _policy_and_pieces(runner_or_policy, pieces: Sequence[str] | None):
-    """The rsl-rl model and the pieces of its input (from the runner's env if it has one)."""
+    """The rsl-rl model, its env (the runner's or the evaluation policy's adapter; None for a
+    bare model) and the pieces of its input (from that env if there is one)."""
     alg = getattr(runner_or_policy, "alg", None)
     policy = alg.get_policy() if alg is not None else runner_or_policy
+    env = getattr(runner_or_policy, "env", None)
+    if hasattr(runner_or_policy, "adapter"):  # an rwalk.evaluation.Policy of a checkpoint
+        policy, env = runner_or_policy.model, runner_or_policy.adapter
     if not hasattr(policy, "as_jit") or not hasattr(policy, "obs_dim"):
         raise TypeError(
             f"export_policy takes an rsl-rl runner or its MLPModel / RNNModel, "
             f"got {type(runner_or_policy).__name__}"
         )
-    env = getattr(runner_or_policy, "env", None)
     catalog = task_catalog(env.core.task) if hasattr(env, "core") else None
     if pieces is None:
         groups = getattr(env, "groups", None)
@@ -183,7 +187,29 @@ def _policy_and_pieces(runner_or_policy, pieces: Sequence[str] | None):
         raise ValueError(
             f"pieces {tuple(pieces)} have {size} values; the policy reads {policy.obs_dim}"
         )
-    return policy, layout
+    return policy, env, layout
+
+
+def deploy_spec(core) -> dict[str, Any]:
+    """What ``rwalk.deploy`` needs beside the ONNX graph to run a policy of ``core``'s
+    task: the task, the timing, the residual scale, the legs, the gait's tables (exact:
+    JSON writes each float's shortest round-trip form) and the cycle-speed window."""
+    spec = {
+        "task": core.task.name,
+        "substeps": core.decimation,
+        "dt": core.world.dt,
+        "sensors": "rwalk.deploy.SENSOR_LAYOUT: MuJoCo sensordata, 65 values",
+        "cycle_steps": core.episodes.recent.shape[1],
+        "leg_geometry": dataclasses.asdict(core.geometry),
+    }
+    if core.task.name == "residual_walk":
+        controller = core.controller
+        spec["residual_scale"] = core.config.residual_scale
+        spec["gait"] = {
+            "targets": controller.target_table.tolist(),
+            "phase_features": controller.phase_table.tolist(),
+        }
+    return spec
 
 
 def export_policy(
@@ -193,7 +219,8 @@ def export_policy(
 
     Args:
         runner_or_policy: an rsl-rl ``OnPolicyRunner`` (the layout comes from its
-            ``RslRlVecEnv``) or its policy model (``MLPModel``).
+            ``RslRlVecEnv``), a checkpoint's ``rwalk.evaluation.Policy`` (from its
+            adapter), or a bare policy model (``MLPModel``: no ``deploy`` section).
         folder: created if missing; nothing is written outside it.
         pieces: the input's pieces; None = the runner env's policy group, or
             ``DEFAULT_PIECES`` for a bare model.
@@ -203,10 +230,9 @@ def export_policy(
     """
     from rwalk.rl.checkpoints import atomic_write, atomic_write_text
 
-    policy, layout = _policy_and_pieces(runner_or_policy, pieces)
+    policy, env, layout = _policy_and_pieces(runner_or_policy, pieces)
     folder = Path(folder)
     size = policy.obs_dim
-    env = getattr(runner_or_policy, "env", None)
     task = env.core.task if hasattr(env, "core") else None
     actions = task.action_dim if task is not None else ACTION_DIM
     layout_text = (
@@ -222,6 +248,8 @@ def export_policy(
         "observation_normalizer": "included: feed raw observations",
         "files": {"torchscript": "policy.pt", "onnx": "policy.onnx"},
     }
+    if task is not None:
+        description["deploy"] = deploy_spec(env.core)
 
     scripted = torch.jit.script(policy.as_jit().to("cpu").eval())
     jit_path = atomic_write(folder / "policy.pt", lambda file: torch.jit.save(scripted, file))
