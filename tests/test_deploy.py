@@ -1,0 +1,144 @@
+"""The runtime against the env: torch-free, bit for bit in closed loop, and rwalk-sim2sim."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import io
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from deploy_exports import make_exports
+
+from rwalk import presets, sim2sim
+from rwalk.envs.torchrl_env import BatchedEnv
+from rwalk.gait import BezierGaitController
+from rwalk.kinematics import LegGeometry
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def exports(tmp_path_factory) -> Path:
+    return make_exports(tmp_path_factory.mktemp("exports"))
+
+
+def test_the_runtime_and_its_tests_run_where_torch_cannot_be_imported(exports):
+    code = (
+        "import sys; sys.modules['torch'] = None\n"  # import torch raises ImportError
+        "import pytest\n"
+        "sys.exit(pytest.main(['-q', '-p', 'no:cacheprovider', 'tests/test_deploy_runtime.py']))"
+    )
+    env = {**os.environ, "RWALK_DEPLOY_EXPORTS": str(exports)}
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True,
+                          text=True, timeout=300, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert re.search(r"\b10 passed\b", done.stdout), done.stdout[-500:]
+
+
+def test_the_export_carries_the_gait_and_legs_bit_for_bit(exports):
+    deploy = json.loads((exports / "mlp" / "policy.json").read_text())["deploy"]
+    assert deploy["task"] == "residual_walk"
+    assert (deploy["substeps"], deploy["dt"], deploy["residual_scale"]) == (5, 0.004, 0.02)
+    assert deploy["cycle_steps"] == 30  # 0.6 s of 20 ms periods
+    assert LegGeometry(**{k: tuple(map(lambda v: tuple(v) if isinstance(v, list) else v, x))
+                          if isinstance(x, list) else x
+                          for k, x in deploy["leg_geometry"].items()}) == LegGeometry()  # fmt: skip
+    controller = BezierGaitController(dt=0.004)
+    np.testing.assert_array_equal(np.array(deploy["gait"]["targets"]), controller.target_table)
+    np.testing.assert_array_equal(
+        np.array(deploy["gait"]["phase_features"]), controller.phase_table
+    )
+
+
+def _env(n: int = 3, steps: int = 80) -> BatchedEnv:
+    config = presets.evaluation_config(max_steps=steps, settle_steps=50)
+    return BatchedEnv(n, config, seed=0, task="residual_walk")
+
+
+@pytest.mark.parametrize("actor", ["mlp", "gru"])
+def test_the_runtime_on_mj_step_follows_the_env_bit_for_bit(exports, actor):
+    traces = sim2sim.closed_loop(exports / actor, _env(), seed=7, steps=80)
+    assert [t.env for t in traces] == [0, 1, 2]
+    assert all(t.steps >= 10 for t in traces)  # (these random policies fall soon)
+    assert all(t.first_difference is None and t.max_difference == 0.0 for t in traces)
+
+
+def test_the_comparison_sees_a_runtime_that_differs(exports, tmp_path):
+    folder = Path(shutil.copytree(exports / "mlp", tmp_path / "mlp"))
+    layout = json.loads((folder / "policy.json").read_text())
+    layout["deploy"]["residual_scale"] *= 1.0 + 1e-12
+    (folder / "policy.json").write_text(json.dumps(layout))
+    traces = sim2sim.closed_loop(folder, _env(), seed=7, steps=80)
+    assert all(t.first_difference == 1 and t.max_difference > 0.0 for t in traces)
+
+
+def test_the_walk_table_checks_the_band_by_hand():
+    def row(physics, falls, falls_se, error, error_se):
+        return {"world": "w.xml", "physics": physics, "fall_rate": falls,
+                "fall_rate_se": falls_se, "velocity_error": error,
+                "velocity_error_se": error_se}  # fmt: skip
+
+    # band 2: falls |0.10 - 0.05| = 0.05 <= 2 x 0.03; error |0.020 - 0.017| <= 2 x max(0.001,
+    # 0.002) = 0.004 -> yes. With error 0.022: 0.005 > 0.004 -> no.
+    within = sim2sim.walk_table(
+        [row("env", 0.10, 0.03, 0.020, 0.001), row("reference", 0.05, 0.03, 0.017, 0.001)], band=2.0
+    )
+    assert "| w.xml | env | 10% ± 3% | 0.0200 ± 0.0010 | yes |" in within
+    outside = sim2sim.walk_table(
+        [row("env", 0.10, 0.03, 0.022, 0.001), row("reference", 0.05, 0.03, 0.017, 0.001)], band=2.0
+    )
+    assert "| no |" in outside  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory) -> Path:
+    """A robust run's checkpoint and config.json, as rwalk-train writes them."""
+    from rwalk.rl.config import TrainArgs
+    from rwalk.rl.runner import SafeRunner
+    from rwalk.rl.training import make_env, rsl_rl_config
+
+    args = dataclasses.replace(TrainArgs(), num_envs=2, settle_steps=2, max_episode_steps=10,
+                               hidden_dims=(8,), actor="gru", rnn_hidden_dim=8)  # fmt: skip
+    torch.manual_seed(0)
+    with contextlib.redirect_stdout(io.StringIO()):
+        runner = SafeRunner(make_env(args), rsl_rl_config(args), log_dir=None, device="cpu")
+    folder = tmp_path_factory.mktemp("run")
+    runner.save(str(folder / "model_0.pt"))
+    (folder / "config.json").write_text(json.dumps({"args": dataclasses.asdict(args)}))
+    return folder / "model_0.pt"
+
+
+def test_rwalk_sim2sim_exports_compares_and_walks(checkpoint, tmp_path, capsys):
+    from rwalk.runners.sim2sim import main
+
+    out = tmp_path / "out"
+    main([str(checkpoint), "--out", str(out), "--episodes", "2", "--steps", "30",
+          "--world", "model/world_flat.xml", "--walk-episodes", "2",
+          "--json", str(tmp_path / "s2s.json")])  # fmt: skip
+    printed = capsys.readouterr().out
+    assert "closed loop: 2/2 episodes bit-identical" in printed
+    assert "| world_flat.xml | env |" in printed and "| world_flat.xml | reference |" in printed
+    saved = json.loads((tmp_path / "s2s.json").read_text())
+    assert 0.0 <= saved["policy_gap"] < 1e-5  # onnxruntime's float32 matmuls against torch's
+    assert [w["physics"] for w in saved["walks"]] == ["env", "reference"]
+    assert sorted(p.name for p in (out / "exported").iterdir()) == [
+        "policy.json", "policy.onnx", "policy.pt"
+    ]  # fmt: skip
+
+
+def test_rwalk_sim2sim_refuses_a_missing_world_in_one_line(checkpoint, capsys):
+    from rwalk.runners.sim2sim import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main([str(checkpoint), "--world", "nope.xml"])
+    assert exit_info.value.code == 2
+    assert "--world: 'nope.xml' not found" in capsys.readouterr().err
