@@ -88,6 +88,21 @@ def test_one_command_trains_the_teacher_then_its_student(tmp_path, capsys):
     assert play.play(["--checkpoint", str(folder / "student" / "model_2.pt"), *PLAY])
 
 
+def test_symmetry_is_the_default_where_rsl_rl_allows_it():
+    from rwalk.rl.config import mirrored
+    from rwalk.rl.training import rsl_rl_config
+
+    def augments(*flags: str) -> bool:
+        args = train.parse_args(list(flags))
+        in_config = "symmetry_cfg" in rsl_rl_config(args).get("algorithm", {})
+        assert in_config == mirrored(args)
+        return in_config
+
+    assert augments() and augments("--teacher")
+    assert not augments("--actor", "gru")  # the default adapts; an explicit flag is refused
+    assert not augments("--distill", "x.pt") and not augments("--no-symmetry")
+
+
 @pytest.mark.parametrize(
     ("flags", "message"),
     [

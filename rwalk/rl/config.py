@@ -147,9 +147,10 @@ class TrainConfig:
     gradient_length: int = 15
     """--distill: steps whose losses add up before each gradient step (a recurrent student
     learns through them)"""
-    symmetry: bool = False
-    """augment PPO's minibatches with the left-right mirrored states and actions
-    (rsl-rl's symmetry augmentation; an MLP actor only)"""
+    symmetry: bool = True
+    """augment PPO's minibatches with the left-right mirrored states and actions (rsl-rl's
+    symmetry augmentation) where rsl-rl allows it: PPO with an MLP actor (recurrent actors
+    and distilled students train without it; docs/learning.md)"""
     student_iterations: int = 0
     """with --teacher: when the teacher is trained, distil it into a blind student for this
     many iterations in LOG_DIR/student (both stages in one command; an interrupted student
@@ -169,14 +170,6 @@ class TrainConfig:
         if self.student_iterations and not self.teacher:
             raise ValueError("--student-iterations needs --teacher: the student is distilled "
                              "from the teacher this run trains")  # fmt: skip
-        if self.symmetry and self.actor != "mlp":
-            raise ValueError(
-                f"--symmetry needs --actor mlp (rsl-rl's symmetry augmentation refuses "
-                f"recurrent models), got --actor {self.actor}"
-            )
-        if self.symmetry and self.distill:
-            raise ValueError("--symmetry and --distill do not go together (rsl-rl's "
-                             "Distillation refuses the symmetry extension)")  # fmt: skip
         if self.teacher and self.distill:
             raise ValueError("--teacher and --distill do not go together: a teacher is "
                              "trained with PPO, then distilled into a student")  # fmt: skip
@@ -249,7 +242,7 @@ class TrainConfig:
             "use_clipped_value_loss": False,
             "max_grad_norm": self.max_grad_norm,
         }
-        if self.symmetry:
+        if mirrored(self):
             algorithm["symmetry_cfg"] = {
                 "use_data_augmentation": True,
                 "use_mirror_loss": False,
@@ -261,6 +254,23 @@ class TrainConfig:
             "actor": self.model(),
             "critic": self.model(output_std=False),
         }
+
+
+def mirrored(train) -> bool:
+    """Whether a training (``TrainConfig`` or rwalk-train's flags) augments with mirrors:
+    --symmetry, where rsl-rl allows it (PPO with an MLP actor)."""
+    return train.symmetry and train.actor == "mlp" and not train.distill
+
+
+def symmetry_refusal(train) -> str | None:
+    """Why an explicit --symmetry cannot apply to ``train`` (None: it can)."""
+    if not train.symmetry or mirrored(train):
+        return None
+    if train.distill:
+        return ("--symmetry and --distill do not go together (rsl-rl's Distillation refuses "
+                "the symmetry extension)")  # fmt: skip
+    return (f"--symmetry needs --actor mlp (rsl-rl's symmetry augmentation refuses recurrent "
+            f"models), got --actor {train.actor}")  # fmt: skip
 
 
 def observation_groups(

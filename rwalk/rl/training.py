@@ -45,6 +45,7 @@ from rwalk.rl.config import (
     ConfigError,
     ResumeConflict,
     load_saved_args,
+    mirrored,
     observation_groups,
     restore_run,
 )
@@ -91,7 +92,7 @@ def make_env(args, teacher: Teacher | None = None) -> RslRlVecEnv:
             critic_obs=groups["critic"],
             reward_scale=args.reward_scale,
         )
-    if args.symmetry:  # every piece of every group mirrors (ValueError naming one that does not)
+    if mirrored(args):  # every piece of every group mirrors (ValueError naming one that does not)
         for group in env.groups:
             env.mirror(group)
         env.action_mirror()

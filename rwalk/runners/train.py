@@ -43,16 +43,24 @@ it marks a run in progress.
 
 from __future__ import annotations
 
+import sys
+
 from rwalk.cli import command, explicit_fields, one_line_errors, parse_dataclass
 from rwalk.rl import distributed, training
 from rwalk.rl.config import TrainArgs as Args
+from rwalk.rl.config import symmetry_refusal
 
 PROG = command("rwalk.runners.train")
 """The command in usage lines and error messages."""
 
 
 def parse_args(argv: list[str] | None = None) -> Args:
-    return parse_dataclass(Args, argv, __doc__, prog=PROG)
+    args = parse_dataclass(Args, argv, __doc__, prog=PROG)
+    refusal = symmetry_refusal(args)
+    if refusal and "symmetry" in explicit_fields(Args, argv):  # the default adapts, a flag not
+        print(f"usage: {PROG} [-h] ...\n{PROG}: error: {refusal}", file=sys.stderr)
+        raise SystemExit(2)
+    return args
 
 
 @one_line_errors("rwalk.runners.train")
