@@ -142,3 +142,17 @@ def test_rwalk_sim2sim_refuses_a_missing_world_in_one_line(checkpoint, capsys):
         main([str(checkpoint), "--world", "nope.xml"])
     assert exit_info.value.code == 2
     assert "--world: 'nope.xml' not found" in capsys.readouterr().err
+
+
+def test_the_readme_deploy_snippet_walks_a_simulated_robot(exports):
+    """README's Deploy example, as written there (2 periods of an exported policy)."""
+    section = (ROOT / "README.md").read_text().split("## Deploy", 1)[1].split("\n## ", 1)[0]
+    (code,) = re.findall(r"```python\n(.*?)```", section, re.DOTALL)
+    assert '"logs/rwalk/exported"' in code and "range(250)" in code
+    code = code.replace('"logs/rwalk/exported"', repr(str(exports / "gru")))
+    code = code.replace("range(250)", "range(2)")
+    namespace: dict = {}
+    exec(compile(code, "README.md deploy", "exec"), namespace)
+    controller, data = namespace["controller"], namespace["data"]
+    assert namespace["targets"].shape == (5, 12) and controller.tick == 10
+    assert data.time == pytest.approx(0.04) and controller.state[0].any()
