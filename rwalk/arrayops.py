@@ -120,6 +120,15 @@ if torch is not None:  # the batched core's namespace
             return x.unbind(-1)
 
         @staticmethod
+        def unstack_first(x: Tensor) -> tuple[Tensor, ...]:
+            return x.unbind(0)
+
+        @staticmethod
+        def expand(x: Tensor, shape: tuple[int, ...]) -> Tensor:
+            """x broadcast to ``shape``, as a new writable tensor."""
+            return x.expand(*shape).clone()
+
+        @staticmethod
         def all_last(x: Tensor) -> Tensor:
             return x.all(dim=-1)
 
@@ -190,6 +199,15 @@ class NumpyOps:
     @staticmethod
     def unstack(x: np.ndarray) -> tuple[np.ndarray, ...]:
         return tuple(x[..., k] for k in range(x.shape[-1]))
+
+    @staticmethod
+    def unstack_first(x: np.ndarray) -> tuple[np.ndarray, ...]:
+        return tuple(x)
+
+    @staticmethod
+    def expand(x: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+        """x broadcast to ``shape``, as a new writable array."""
+        return np.broadcast_to(x, shape).copy()
 
     @staticmethod
     def all_last(x: np.ndarray) -> np.ndarray:

@@ -30,8 +30,9 @@ a ``ValueError``; a non-finite reading, or a non-finite policy output, makes
 ``step`` return the last safe targets again (``controller.held`` says so,
 and a warning names the reading), and the next finite readings go on.
 
-Runs the residual task's policies (MLP or recurrent). The adaptive task's
-policies are refused by name: their gait is not yet ported here.
+Runs both tasks' policies (MLP or recurrent): the residual task's fixed trot from
+its exported tables, the adaptive task's gait from its parameters with the
+functions the env uses (``rwalk.gaitmath``).
 """
 
 from __future__ import annotations
@@ -44,7 +45,9 @@ from pathlib import Path
 
 import numpy as np
 
+from rwalk import exactmath
 from rwalk.constants import OBS_CONTACT, OBS_DIM, OBS_LINVEL, OBS_POS, OBSERVATION_SENSORS
+from rwalk.gaitmath import advance_phase, trot_targets
 from rwalk.kinematics import LegGeometry, leg_ik
 
 #: The readings ``Controller.step`` takes: (sensor name, width), in order (65 values).
@@ -52,6 +55,8 @@ SENSOR_LAYOUT = OBSERVATION_SENSORS
 #: The pieces a deployed policy may read (the rest need the simulator: privileged).
 DEPLOYABLE = ("observation", "observation_from_start", "phase", "lateral_offset",
               "cycle_speed", "command")  # fmt: skip
+#: The tasks whose policies it runs.
+TASKS = ("residual_walk", "adaptive_gait")
 #: What an export folder holds for the runtime.
 FILES = ("policy.json", "policy.onnx")
 
@@ -85,26 +90,27 @@ class Controller:
                 f"the policy reads {cannot} (privileged: only the simulator knows them); "
                 f"deploy a student (rwalk-train --distill) that reads {DEPLOYABLE}"
             )
-        self.width = int(layout["input"]["shape"][1])
-        self.substeps = int(deploy["substeps"])
-        """K: physics substeps per control period (rows of ``step``'s targets)."""
-        self.dt = float(deploy["dt"])
-        """Seconds per substep: how long each row of targets is held."""
-        self.control_dt = self.substeps * self.dt
-        self.residual_scale = float(deploy["residual_scale"])
-        self.geometry = LegGeometry(**{k: _tuples(v) for k, v in deploy["leg_geometry"].items()})
-        self.targets = np.array(deploy["gait"]["targets"], dtype=np.float64)
-        """Base foot targets at each tick of the cycle, hip frames. Shape: (P, 4, 3). m."""
-        self.phase_features = np.array(deploy["gait"]["phase_features"], dtype=np.float64)
-        """(sin 2πφ, cos 2πφ) at each tick. Shape: (P, 2)."""
-        self.period = len(self.targets)
-        if self.targets.shape != (self.period, 4, 3) or self.phase_features.shape != (
-            self.period,
-            2,
-        ):
-            raise ValueError(f"policy.json's deploy.gait tables have shapes "
-                             f"{self.targets.shape}, {self.phase_features.shape}; want (P, 4, 3), "
-                             f"(P, 2)")  # fmt: skip
+        try:  # the deploy section is data: a missing or malformed entry is named
+            self.width = int(layout["input"]["shape"][1])
+            self.substeps = int(deploy["substeps"])
+            """K: physics substeps per control period (rows of ``step``'s targets)."""
+            self.dt = float(deploy["dt"])
+            """Seconds per substep: how long each row of targets is held."""
+            self.control_dt = self.substeps * self.dt
+            self.geometry = LegGeometry(
+                **{k: _tuples(v) for k, v in deploy["leg_geometry"].items()}
+            )
+            gait = (TableGait if deploy["task"] == "residual_walk" else AdaptiveGait)(
+                deploy, self.geometry
+            )
+        except (KeyError, IndexError, TypeError, ValueError) as error:
+            raise ValueError(
+                f"{str(folder / 'policy.json')!r}: the deploy section is incomplete "
+                f"or malformed ({type(error).__name__}: {error})"
+            ) from None
+        self.gait: TableGait | AdaptiveGait = gait
+        """The gait and its state (phase; the adaptive task's parameters)."""
+        self.period = gait.period
         self.window = int(deploy["cycle_steps"])
         self.session, self.state_shapes = _session(
             folder / "policy.onnx", layout, self.width, threads
@@ -133,7 +139,7 @@ class Controller:
             raise ValueError(f"reset needs finite readings; got {_bad(readings)}")
         if not 0 <= int(tick) < self.period or int(tick) != tick:
             raise ValueError(f"tick must be a whole number in [0, {self.period}), got {tick!r}")
-        self.tick = int(tick)
+        self.gait.reset(int(tick))
         self.x0, self.y0 = float(readings[OBS_POS.start]), float(readings[OBS_POS.start + 1])
         v0 = readings[OBS_LINVEL.start]
         self.recent = np.full(self.window, v0)
@@ -141,7 +147,7 @@ class Controller:
         self.slot = 0
         self.state = [np.zeros(shape, dtype=np.float32) for shape in self.state_shapes]
         self._fresh, self._started, self.held = True, True, False
-        self.safe = self._joints(np.zeros((4, 3)))
+        self.safe = self.gait.joints(None)
         return self.safe
 
     def step(self, readings) -> np.ndarray:
@@ -174,8 +180,7 @@ class Controller:
             return self._hold(f"a non-finite policy output {action[0].tolist()}")
         self.state = state
         action = np.minimum(np.maximum(action[0].astype(np.float64), -1.0), 1.0)
-        self.safe = self._joints(action.reshape(4, 3) * self.residual_scale)
-        self.tick = (self.tick + self.substeps) % self.period
+        self.safe = self.gait.joints(action)
         self.held = False
         return self.safe
 
@@ -184,6 +189,7 @@ class Controller:
         env builds it (float64 pieces, then float32). Shape: (D,) float32."""
         obs = readings.copy()
         obs[OBS_CONTACT] = readings[OBS_CONTACT] > 0
+        obs = np.concatenate([obs, self.gait.observation()])  # the task's spec observation
         parts = []
         for name in self.pieces:
             if name == "observation":
@@ -194,7 +200,7 @@ class Controller:
                 local[OBS_POS.start + 1] -= self.y0
                 parts.append(local)
             elif name == "phase":
-                parts.append(self.phase_features[self.tick])
+                parts.append(self.gait.phase_features())
             elif name == "lateral_offset":
                 parts.append([obs[OBS_POS.start + 1] - self.y0])
             elif name == "cycle_speed":
@@ -210,12 +216,6 @@ class Controller:
             raise ValueError(f"policy input of {row.shape[0]} values; the ONNX graph takes "
                              f"{self.width}")  # fmt: skip
         return row
-
-    def _joints(self, residuals: np.ndarray) -> np.ndarray:
-        """Joint targets of this period's substeps from foot residuals (m). Shape: (K, 12)."""
-        ticks = (self.tick + np.arange(self.substeps)) % self.period
-        joints, _ = leg_ik(self.targets[ticks] + residuals, self.geometry, flag_unreachable=False)
-        return joints.reshape(self.substeps, 12)
 
     def _hold(self, why: str) -> np.ndarray:
         """The last safe targets again (the period's last row), saying why."""
@@ -265,9 +265,8 @@ def _read_layout(path: Path) -> dict:
             f"{str(path)!r} has no deploy section (input.pieces, deploy.task): export the "
             f"policy with this rwalk (rwalk-sim2sim CHECKPOINT --export FOLDER)"
         ) from None
-    if task != "residual_walk":
-        raise ValueError(f"{str(path)!r} is a {task!r} policy; rwalk.deploy runs "
-                         f"'residual_walk' policies")  # fmt: skip
+    if task not in TASKS:
+        raise ValueError(f"{str(path)!r} is a {task!r} policy; rwalk.deploy runs {TASKS}")
     if not isinstance(pieces, list) or not all(isinstance(p, dict) for p in pieces):
         raise ValueError(f"{str(path)!r}: input.pieces must be a list of pieces")
     return layout
@@ -306,3 +305,110 @@ def _session(path: Path, layout: dict, width: int, threads: int):
             raise ValueError(f"{str(path)!r}'s {node.name} has shape {node.shape}; policy.json "
                              f"says (layers, batch, hidden) = {shape}")  # fmt: skip
     return session, shapes
+
+
+class TableGait:
+    """The residual task's fixed trot: base targets looked up by tick, plus residuals."""
+
+    def __init__(self, deploy: dict, geometry: LegGeometry) -> None:
+        self.geometry = geometry
+        self.substeps = int(deploy["substeps"])
+        self.residual_scale = float(deploy["residual_scale"])
+        self.targets = np.array(deploy["gait"]["targets"], dtype=np.float64)
+        """Base foot targets at each tick of the cycle, hip frames. Shape: (P, 4, 3). m."""
+        self.table = np.array(deploy["gait"]["phase_features"], dtype=np.float64)
+        """(sin 2πφ, cos 2πφ) at each tick. Shape: (P, 2)."""
+        self.period = len(self.targets)
+        if self.targets.shape != (self.period, 4, 3) or self.table.shape != (self.period, 2):
+            raise ValueError(f"policy.json's deploy.gait tables have shapes "
+                             f"{self.targets.shape}, {self.table.shape}; want (P, 4, 3), "
+                             f"(P, 2)")  # fmt: skip
+        self.tick = 0
+
+    def reset(self, tick: int) -> None:
+        self.tick = tick
+
+    def observation(self) -> np.ndarray:
+        """What the task's spec observation adds to the sensors: nothing."""
+        return np.zeros(0)
+
+    def phase_features(self) -> np.ndarray:
+        return self.table[self.tick]
+
+    def joints(self, action: np.ndarray | None) -> np.ndarray:
+        """This period's joint targets for a clipped action (None: the base gait's, the
+        state unchanged); an action also moves the gait on by one period. (K, 12)."""
+        targets = self.targets[(self.tick + np.arange(self.substeps)) % self.period]
+        if action is not None:
+            targets = targets + action.reshape(4, 3) * self.residual_scale
+        joints, _ = leg_ik(targets, self.geometry, flag_unreachable=False)
+        if action is not None:
+            self.tick = (self.tick + self.substeps) % self.period
+        return joints.reshape(self.substeps, 12)
+
+
+class AdaptiveGait:
+    """The adaptive task's gait: four parameters moved by the action (its "delta" or
+    "target" reading), a continuous phase, foot paths by ``rwalk.gaitmath``, residuals."""
+
+    def __init__(self, deploy: dict, geometry: LegGeometry) -> None:
+        self.geometry = geometry
+        self.substeps = int(deploy["substeps"])
+        self.dt = float(deploy["dt"])
+        self.residual_scale = float(deploy["residual_scale"])
+        gait, adaptive = deploy["gait"], deploy["adaptive"]
+        self.period = int(gait["period"])
+        self.duty_factor = float(gait["duty_factor"])
+        self.stance_depth = float(gait["stance_depth"])
+        self.offsets, self.swing_points, self.neutral = (
+            np.array(gait[key], dtype=np.float64) for key in ("offsets", "swing_points", "neutral")
+        )
+        self.start, self.low, self.high, self.delta = (
+            np.array(adaptive[key], dtype=np.float64) for key in ("start", "low", "high", "delta")
+        )
+        self.centre = 0.5 * (self.low + self.high)
+        self.half_width = 0.5 * (self.high - self.low)
+        self.gait_action = adaptive["gait_action"]
+        if self.gait_action not in ("delta", "target"):
+            raise ValueError(f"policy.json's deploy.adaptive.gait_action must be 'delta' or "
+                             f"'target', got {self.gait_action!r}")  # fmt: skip
+        self.reset(0)
+
+    def reset(self, tick: int) -> None:
+        self.params = self.start.copy()
+        """step_height, step_length, cycle_time, body_height (m, s). Shape: (4,)."""
+        self.phase = np.array([tick / self.period])
+        """The continuous gait phase. Shape: (1,)."""
+
+    def observation(self) -> np.ndarray:
+        """The parameters as the spec observation's last 4 values (v - centre) / half_width."""
+        return (self.params - self.centre) / self.half_width
+
+    def phase_features(self) -> np.ndarray:
+        angle = 2.0 * math.pi * self.phase
+        return np.concatenate([exactmath.sin(angle), exactmath.cos(angle)])
+
+    def joints(self, action: np.ndarray | None) -> np.ndarray:
+        """This period's joint targets for a clipped action (None: the current gait with
+        no residuals, the state unchanged); an action moves the parameters and the
+        phase as the env does. Shape: (K, 12)."""
+        params = self.params
+        if action is not None:
+            if self.gait_action == "delta":
+                moved = params + action[:4] * self.delta
+            else:
+                target = self.centre + action[:4] * self.half_width
+                moved = params + np.minimum(np.maximum(target - params, -self.delta), self.delta)
+            params = np.minimum(np.maximum(moved, self.low), self.high)
+        k = self.substeps
+        phases = advance_phase(self.phase, params[2:3], self.dt, k)
+        step_height, step_length, body_height = (params[i : i + 1, None, None] for i in (0, 1, 3))
+        stance_z = -body_height + self.geometry.foot_radius - self.stance_depth
+        targets, _ = trot_targets(phases[:, :k], step_height, step_length, stance_z,
+                                  self.duty_factor, self.offsets, self.swing_points,
+                                  self.neutral)  # fmt: skip
+        if action is not None:
+            targets = targets + action[4:].reshape(1, 1, 4, 3) * self.residual_scale
+            self.params, self.phase = params, phases[:, k]
+        joints, _ = leg_ik(targets, self.geometry, flag_unreachable=False)
+        return joints.reshape(k, 12)

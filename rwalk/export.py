@@ -202,12 +202,26 @@ def deploy_spec(core) -> dict[str, Any]:
         "cycle_steps": core.episodes.recent.shape[1],
         "leg_geometry": dataclasses.asdict(core.geometry),
     }
-    if core.task.name == "residual_walk":
-        controller = core.controller
-        spec["residual_scale"] = core.config.residual_scale
+    controller, task = core.controller, core.task
+    spec["residual_scale"] = core.config.residual_scale
+    if task.name == "residual_walk":
         spec["gait"] = {
             "targets": controller.target_table.tolist(),
             "phase_features": controller.phase_table.tolist(),
+        }
+    else:  # adaptive_gait: the trot's constants, the parameters' start, ranges and action
+        params = controller.params
+        spec["gait"] = {
+            "period": controller.period,
+            "duty_factor": params.duty_factor,
+            "stance_depth": params.stance_depth,
+            "offsets": controller.leg_offsets.tolist(),
+            "swing_points": controller.swing_points.tolist(),
+            "neutral": controller.neutral.tolist(),
+        }
+        spec["adaptive"] = {
+            "gait_action": core.config.gait_action,
+            **{key: getattr(task, key).tolist() for key in ("start", "low", "high", "delta")},
         }
     return spec
 
@@ -257,7 +271,7 @@ def export_policy(
     model = policy.as_onnx(verbose=False).to("cpu").eval()
     inputs, outputs, example, shapes = ["obs"], ["actions"], (torch.zeros(2, size),), [{0: ...}]
     if getattr(policy, "is_recurrent", False):
-        model = (_LstmOnnx if model.rnn_type == "lstm" else _GruOnnx)(model)
+        model = (_LstmOnnx if model.rnn_type == "lstm" else _GruOnnx)(model).eval()
         state = (model.layers, 2, model.hidden)
         inputs += [f"{name}_in" for name in model.states]
         outputs += [f"{name}_out" for name in model.states]

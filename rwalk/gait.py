@@ -17,7 +17,6 @@ velocity.
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass, fields
 from typing import NamedTuple
@@ -26,10 +25,11 @@ import torch
 from torch import Tensor
 
 from rwalk import exactmath
+from rwalk.gaitmath import TROT_OFFSETS, advance_phase, bernstein_curve, leg_phases, trot_targets
 from rwalk.kinematics import LegGeometry, leg_ik
 
-#: Phase offset of each leg (FL, FR, RL, RR): diagonal pairs in step.
-TROT_OFFSETS: tuple[float, ...] = (0.0, 0.5, 0.5, 0.0)
+__all__ = ["TROT_OFFSETS", "BezierGaitController", "GaitParameters", "GaitShape", "advance_phase",
+           "bernstein_curve", "swing_control_points"]  # fmt: skip
 
 
 class GaitShape(NamedTuple):
@@ -40,26 +40,6 @@ class GaitShape(NamedTuple):
     step_height: Tensor
     step_length: Tensor
     body_height: Tensor
-
-
-def advance_phase(phase: Tensor, cycle_time: Tensor, dt: float, substeps: int) -> Tensor:
-    """Continuous gait phases over K substeps of ``dt`` at per-env cycle times.
-
-    The phase advances by dt / cycle_time per substep, so a new cycle time changes
-    how fast the phase moves, never the phase itself. Elementwise IEEE arithmetic
-    only: each env's phases are the same bits in any batch.
-
-    Args:
-        phase: phase in [0, 1) at the start of the period. Shape: (N,).
-        cycle_time: seconds per cycle. Shape: (N,).
-
-    Returns:
-        Phases at the start of substeps 0..K (column K starts the next period),
-        each in [0, 1). Shape: (N, K + 1).
-    """
-    ticks = torch.arange(substeps + 1, dtype=phase.dtype)
-    shifted = phase.unsqueeze(-1) + ticks * (dt / cycle_time).unsqueeze(-1)
-    return shifted - torch.floor(shifted)
 
 
 @dataclass(frozen=True)
@@ -116,27 +96,6 @@ class GaitParameters:
     def stance_sweep(self) -> float:
         """Distance a stance foot travels relative to the body: duty x stride. Metres."""
         return self.duty_factor * self.step_length
-
-
-def bernstein_curve(points: Tensor, t: Tensor) -> Tensor:
-    """Evaluate a Bézier curve by de Casteljau's construction.
-
-    Only elementwise multiplies and adds (no pow, no matmul), so every point is
-    the same bits on any CPU and for any shape of ``t``.
-
-    Args:
-        points: control points. Shape: (n + 1, D).
-        t: curve parameters in [0, 1]. Shape: (...).
-
-    Returns:
-        Points on the curve. Shape: (..., D).
-    """
-    tt = t.unsqueeze(-1)
-    ut = 1.0 - tt
-    level = [point.to(t.dtype) for point in points]
-    while len(level) > 1:
-        level = [ut * a + tt * b for a, b in itertools.pairwise(level)]
-    return level[0].expand(*t.shape, points.shape[1]).clone()
 
 
 def swing_control_points(duty_factor: float) -> Tensor:
@@ -236,8 +195,7 @@ class BezierGaitController:
 
     def leg_phases(self, phase: Tensor) -> Tensor:
         """Each leg's phase in [0, 1). (...,) -> (..., 4). Stance is [0, duty)."""
-        shifted = phase.unsqueeze(-1) + self.leg_offsets
-        return shifted - torch.floor(shifted)  # exact, unlike a float remainder kernel
+        return leg_phases(phase, self.leg_offsets)
 
     def is_swing(self, tick: Tensor) -> Tensor:
         """Swing flags per leg at integer ticks. (...,) -> (..., 4) bool."""
@@ -261,18 +219,8 @@ class BezierGaitController:
         else:  # the same operations as the scalar case, per env and leg
             step_height, step_length, body_height = (v.unsqueeze(-1) for v in shape)
             stance_z = -body_height + self.geometry.foot_radius - p.stance_depth
-        leg_phase = self.leg_phases(phase)
-        swing = leg_phase >= p.duty_factor
-        half = 0.5 * (p.duty_factor * step_length)
-        stance_s = leg_phase / p.duty_factor
-        swing_t = torch.clamp((leg_phase - p.duty_factor) / (1.0 - p.duty_factor), 0.0, 1.0)
-        curve = bernstein_curve(self.swing_points, swing_t)
-        x = torch.where(swing, half * curve[..., 0], half * (1.0 - 2.0 * stance_s))
-        z = stance_z + torch.where(swing, step_height * curve[..., 1], 0.0)
-        targets = self.neutral.expand(*x.shape, 3).clone()
-        targets[..., 0] = x
-        targets[..., 2] = z
-        return targets, swing
+        return trot_targets(phase, step_height, step_length, stance_z, p.duty_factor,
+                            self.leg_offsets, self.swing_points, self.neutral)  # fmt: skip
 
     def swing_at(self, phase: Tensor) -> Tensor:
         """Swing flags per leg at continuous phases. (...,) -> (..., 4) bool."""

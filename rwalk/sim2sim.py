@@ -79,7 +79,8 @@ def closed_loop(folder: Path, env: BatchedEnv, seed: int, steps: int) -> list[Tr
     # them (get_data does not carry them; an mj_forward would read the state after it).
     readings = core.sim.sensordata.copy()
     for i, controller in enumerate(controllers):
-        controller.reset(readings[i], tick=int(core.task.tick[i]))
+        controller.reset(readings[i], tick=core.world.settled_tick)
+        controller.command = float(core.task.target[i])  # read only by a commanded policy
     alive = np.ones(n, dtype=bool)
     first: list[int | None] = [None] * n
     worst = np.zeros(n)

@@ -6,19 +6,24 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import io
-import json
 from pathlib import Path
 
 import numpy as np
 
-#: The policies exported: an MLP and a GRU of a robust run (observation from start).
-ACTORS = ("mlp", "gru")
+#: The policies exported, by folder: an MLP and a GRU of the residual task's robust run
+#: (observation from start), and a commanded GRU of the adaptive task ("target" actions).
+POLICIES = {
+    "mlp": {"actor": "mlp"},
+    "gru": {"actor": "gru"},
+    "adaptive": {"actor": "gru", "task": "adaptive_gait", "command_range": (0.05, 0.25),
+                 "gait_action": "target"},
+}  # fmt: skip
 #: The readings of the starts (a file beside the folders): env i's sensors after reset.
 READINGS = "readings.npy"
 
 
 def make_exports(root: Path) -> Path:
-    """Write ``root/<actor>`` for each of ``ACTORS`` and ``root/readings.npy``; the policies'
+    """Write ``root/<name>`` for each of ``POLICIES`` and ``root/readings.npy``; the policies'
     weights are moved off their initial values so that their outputs (and states) show."""
     import torch
 
@@ -27,18 +32,18 @@ def make_exports(root: Path) -> Path:
     from rwalk.rl.runner import SafeRunner
     from rwalk.rl.training import make_env, rsl_rl_config
 
-    for seed, actor in enumerate(ACTORS):
+    for seed, (name, flags) in enumerate(POLICIES.items()):
         torch.manual_seed(seed)
         args = dataclasses.replace(
             TrainArgs(), num_envs=3, settle_steps=20, max_episode_steps=50, hidden_dims=(16,),
-            robust=True, actor=actor, rnn_hidden_dim=8,
+            robust=True, rnn_hidden_dim=8, **flags,
         )  # fmt: skip
         with contextlib.redirect_stdout(io.StringIO()):
             runner = SafeRunner(make_env(args), rsl_rl_config(args), log_dir=None, device="cpu")
         with torch.no_grad():
             for parameter in runner.alg.get_policy().parameters():
                 parameter.add_(0.3 * torch.randn_like(parameter))
-        export_policy(runner, root / actor)
-        np.save(root / READINGS, runner.env.core.sim.sensordata.copy())
-    (root / "ticks.json").write_text(json.dumps(runner.env.core.task.tick.tolist()))
+        export_policy(runner, root / name)
+        if name == "mlp":
+            np.save(root / READINGS, runner.env.core.sim.sensordata.copy())
     return root

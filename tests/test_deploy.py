@@ -41,7 +41,7 @@ def test_the_runtime_and_its_tests_run_where_torch_cannot_be_imported(exports):
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True,
                           text=True, timeout=300, check=False)  # fmt: skip
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    assert re.search(r"\b10 passed\b", done.stdout), done.stdout[-500:]
+    assert re.search(r"\b11 passed\b", done.stdout), done.stdout[-500:]
 
 
 def test_the_export_carries_the_gait_and_legs_bit_for_bit(exports):
@@ -59,14 +59,19 @@ def test_the_export_carries_the_gait_and_legs_bit_for_bit(exports):
     )
 
 
-def _env(n: int = 3, steps: int = 80) -> BatchedEnv:
-    config = presets.evaluation_config(max_steps=steps, settle_steps=50)
-    return BatchedEnv(n, config, seed=0, task="residual_walk")
+def _env(task: str = "residual_walk", n: int = 3, steps: int = 80) -> BatchedEnv:
+    adaptive = {"command_range": (0.05, 0.25), "gait_action": "target"}
+    config = presets.evaluation_config(task, max_steps=steps, settle_steps=50,
+                                       **(adaptive if task == "adaptive_gait" else {}))  # fmt: skip
+    return BatchedEnv(n, config, seed=0, task=task)
 
 
-@pytest.mark.parametrize("actor", ["mlp", "gru"])
-def test_the_runtime_on_mj_step_follows_the_env_bit_for_bit(exports, actor):
-    traces = sim2sim.closed_loop(exports / actor, _env(), seed=7, steps=80)
+@pytest.mark.parametrize(
+    ("policy", "task"),
+    [("mlp", "residual_walk"), ("gru", "residual_walk"), ("adaptive", "adaptive_gait")],
+)
+def test_the_runtime_on_mj_step_follows_the_env_bit_for_bit(exports, policy, task):
+    traces = sim2sim.closed_loop(exports / policy, _env(task), seed=7, steps=80)
     assert [t.env for t in traces] == [0, 1, 2]
     assert all(t.steps >= 10 for t in traces)  # (these random policies fall soon)
     assert all(t.first_difference is None and t.max_difference == 0.0 for t in traces)
@@ -154,5 +159,5 @@ def test_the_readme_deploy_snippet_walks_a_simulated_robot(exports):
     namespace: dict = {}
     exec(compile(code, "README.md deploy", "exec"), namespace)
     controller, data = namespace["controller"], namespace["data"]
-    assert namespace["targets"].shape == (5, 12) and controller.tick == 10
+    assert namespace["targets"].shape == (5, 12) and controller.gait.tick == 10
     assert data.time == pytest.approx(0.04) and controller.state[0].any()

@@ -64,7 +64,7 @@ def test_a_period_gives_finite_targets_within_the_joint_limits(exports, readings
     lower = np.tile(controller.geometry.joint_lower, 4)
     upper = np.tile(controller.geometry.joint_upper, 4)
     assert (targets >= lower).all() and (targets <= upper).all()
-    assert controller.tick == 5
+    assert controller.gait.tick == 5
     if actor == "gru":  # the state moves, and reset() clears it
         assert np.abs(controller.state[0]).max() > 0
         controller.reset(readings)
@@ -95,7 +95,7 @@ def test_non_finite_readings_hold_the_last_safe_targets_and_say_so(exports, read
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         controller.step(readings)  # finite readings go on
-    assert not controller.held and controller.tick == 10
+    assert not controller.held and controller.gait.tick == 10
 
 
 def test_a_non_finite_policy_output_is_held_too(exports, readings, tmp_path):
@@ -137,8 +137,12 @@ def test_missing_and_mismatched_files_are_named(exports, tmp_path):
     with pytest.raises(ValueError, match="has no deploy section"):
         Controller(folder)
     folder = _copy(exports, tmp_path / "d")
-    _edit(folder, lambda layout: layout["deploy"].update(task="adaptive_gait"))
-    with pytest.raises(ValueError, match=r"'adaptive_gait' policy; rwalk\.deploy runs"):
+    _edit(folder, lambda layout: layout["deploy"].update(task="stand"))
+    with pytest.raises(ValueError, match=r"'stand' policy; rwalk\.deploy runs"):
+        Controller(folder)
+    folder = _copy(exports, tmp_path / "d2", "adaptive")
+    _edit(folder, lambda layout: layout["deploy"]["adaptive"].pop("delta"))
+    with pytest.raises(ValueError, match=r"deploy section is incomplete .*KeyError: 'delta'"):
         Controller(folder)
     folder = _copy(exports, tmp_path / "e")
     _edit(folder, lambda layout: layout["input"]["shape"].__setitem__(1, 70))
@@ -171,3 +175,22 @@ def test_a_commanded_policy_needs_its_command(exports, readings, tmp_path):
         controller.step(readings)
     controller.command = 0.15
     assert controller.policy_input(readings)[-1] == np.float32(0.15)
+
+
+def test_an_adaptive_policy_moves_its_gait_within_the_bounds(exports, readings):
+    controller = Controller(exports / "adaptive")
+    gait = controller.gait
+    controller.reset(readings, tick=75)
+    assert gait.phase.tolist() == [0.5] and gait.gait_action == "target"
+    np.testing.assert_array_equal(gait.params, gait.start)
+    controller.command = 0.2
+    first = gait.params.copy()
+    for _ in range(3):
+        targets = controller.step(readings)
+    assert targets.shape == (5, 12) and np.isfinite(targets).all()
+    moved = np.abs(gait.params - first)
+    assert moved.any() and (moved <= 3 * gait.delta + 1e-15).all()  # at most delta a period
+    assert ((gait.params >= gait.low) & (gait.params <= gait.high)).all()
+    assert controller.policy_input(readings)[65:69].tolist() == pytest.approx(
+        ((gait.params - gait.centre) / gait.half_width).tolist()
+    )

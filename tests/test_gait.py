@@ -6,6 +6,7 @@ import torch
 from rwalk.gait import (
     BezierGaitController,
     GaitParameters,
+    GaitShape,
     bernstein_curve,
     swing_control_points,
 )
@@ -161,3 +162,29 @@ def test_tables_hold_one_cycle_at_every_substep():
 def test_cycle_must_be_a_whole_number_of_physics_steps():
     with pytest.raises(ValueError, match="cycle_time"):
         BezierGaitController(GaitParameters(cycle_time=0.6011), dt=0.002)
+
+
+def test_the_gait_math_gives_the_same_bits_on_numpy_as_on_torch():
+    """rwalk.deploy runs the adaptive gait in numpy: the same bits as the env's torch."""
+    import numpy as np
+
+    from rwalk.gaitmath import advance_phase, trot_targets
+
+    rng = np.random.default_rng(0)
+    phase = rng.uniform(0.0, 1.0, 64)
+    cycle = rng.uniform(0.3, 0.9, 64)
+    phases = advance_phase(phase, cycle, 0.004, 5)
+    want = advance_phase(torch.from_numpy(phase), torch.from_numpy(cycle), 0.004, 5)
+    assert np.array_equal(phases, want.numpy())  # bits, not a tolerance
+    assert ((phases >= 0.0) & (phases < 1.0)).all()
+    controller = BezierGaitController(dt=0.004)
+    height, length, body = (rng.uniform(lo, hi, (64, 1, 1))
+                            for lo, hi in ((0.01, 0.04), (0.0, 0.16), (0.05, 0.09)))  # fmt: skip
+    stance_z = -body + controller.geometry.foot_radius - controller.params.stance_depth
+    targets, swing = trot_targets(
+        phases, height, length, stance_z, controller.params.duty_factor,
+        controller.leg_offsets.numpy(), controller.swing_points.numpy(), controller.neutral.numpy(),
+    )  # fmt: skip
+    shape = GaitShape(*(torch.from_numpy(v[:, 0, 0]).unsqueeze(-1) for v in (height, length, body)))
+    want_targets, want_swing = controller.foot_targets(torch.from_numpy(phases), shape)
+    assert np.array_equal(targets, want_targets.numpy()) and np.array_equal(swing, want_swing)

@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     add = parser.add_argument
-    add("checkpoint", type=Path, help="an rwalk-train checkpoint of the residual task")
+    add("checkpoint", type=Path, help="an rwalk-train checkpoint (either task; a student, not a teacher)")
     add("--out", type=Path, default=Path("sim2sim"), help="folder of the export (OUT/exported)")
     add("--episodes", type=POSITIVE_INT, default=10, help="closed-loop episodes")
     add("--steps", type=POSITIVE_INT, default=1000, help="control periods per episode")
@@ -57,7 +57,7 @@ def main(argv: list[str] | None = None) -> None:
     from rwalk.export import export_policy
     from rwalk.fidelity import BAND, CANDIDATES
 
-    saved = check_policy(args.checkpoint, task="residual_walk")
+    saved = check_policy(args.checkpoint)
     config = presets.evaluation_config(
         **acts_in(args.checkpoint), max_steps=args.steps, command_range=saved.env.commands
     )
