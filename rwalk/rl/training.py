@@ -320,7 +320,9 @@ def _train(args, given, group: distributed.Group, clock: float) -> tuple[Path, A
     log_dir = Path(args.log_dir)
     with contextlib.ExitStack() as stack:  # rank 0 holds the lock until the run ends
         setup = _claim_run(args, given, group, stack)
-        args, resume, teacher = setup.args, setup.resume, setup.teacher
+        own = {name: getattr(args, name) for name in PER_RANK_FLAGS}  # not rank 0's
+        args = dataclasses.replace(setup.args, **own)
+        resume, teacher = setup.resume, setup.teacher
         mine = rank_args(args, group)
         torch.manual_seed(args.seed + group.rank)
         if mine.threads:  # the process's share of the cores, for learning too

@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     add = parser.add_argument
-    add("checkpoint", type=Path, help="an rwalk-train checkpoint (either task; a student, not a teacher)")
+    add("checkpoint", type=Path, help="an rwalk-train checkpoint (either task; not a teacher)")
     add("--out", type=Path, default=Path("sim2sim"), help="folder of the export (OUT/exported)")
     add("--episodes", type=POSITIVE_INT, default=10, help="closed-loop episodes")
     add("--steps", type=POSITIVE_INT, default=1000, help="control periods per episode")
