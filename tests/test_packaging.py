@@ -69,5 +69,5 @@ def test_every_console_script_is_a_main_and_the_readme_uses_only_those():
         assert callable(getattr(importlib.import_module(module), function)), name
         shim = ROOT / "runners" / f"{module.rsplit('.', 1)[1]}.py"
         assert shim.is_file(), f"{name}: no checkout shim {shim}"
-    used = set(re.findall(r"\brwalk-[a-z-]+", (ROOT / "README.md").read_text()))
+    used = set(re.findall(r"\brwalk-[a-z0-9-]+", (ROOT / "README.md").read_text()))
     assert used and used <= set(scripts), used - set(scripts)

@@ -430,9 +430,9 @@ def test_the_time_budget_does_not_count_building_the_envs_as_an_iteration(tmp_pa
     monkeypatch.setattr(training.time, "perf_counter", lambda: clock[0])
     make_env, learn = training.make_env, training.SafeRunner.learn
 
-    def slow_make_env(args):
+    def slow_make_env(args, teacher=None):
         clock[0] += 100.0  # building takes 100 s
-        return make_env(args)
+        return make_env(args, teacher)
 
     def learn_one_second_each(self, num_learning_iterations, **kwargs):
         clock[0] += 1.0 * num_learning_iterations
