@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
-import dataclasses
-import io
 import json
 import os
 import re
@@ -16,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import write_run
 from deploy_exports import make_exports
 
 from rwalk import presets, sim2sim
@@ -106,20 +104,9 @@ def test_the_walk_table_checks_the_band_by_hand():
 
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory) -> Path:
-    """A robust run's checkpoint and config.json, as rwalk-train writes them."""
-    from rwalk.rl.config import TrainArgs
-    from rwalk.rl.runner import SafeRunner
-    from rwalk.rl.training import make_env, rsl_rl_config
-
-    args = dataclasses.replace(TrainArgs(), num_envs=2, settle_steps=2, max_episode_steps=10,
-                               hidden_dims=(8,), actor="gru", rnn_hidden_dim=8)  # fmt: skip
+    """A robust GRU run's checkpoint and config.json, as rwalk-train writes them."""
     torch.manual_seed(0)
-    with contextlib.redirect_stdout(io.StringIO()):
-        runner = SafeRunner(make_env(args), rsl_rl_config(args), log_dir=None, device="cpu")
-    folder = tmp_path_factory.mktemp("run")
-    runner.save(str(folder / "model_0.pt"))
-    (folder / "config.json").write_text(json.dumps({"args": dataclasses.asdict(args)}))
-    return folder / "model_0.pt"
+    return write_run(tmp_path_factory.mktemp("run"), actor="gru", rnn_hidden_dim=8)
 
 
 def test_rwalk_sim2sim_exports_compares_and_walks(checkpoint, tmp_path, capsys):

@@ -1,8 +1,5 @@
 """rwalk-play: evaluations, its errors (named flags and files), help, progress lines."""
 
-import contextlib
-import dataclasses
-import io
 import json
 import os
 import re
@@ -12,6 +9,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import write_run
 
 import rwalk.progress
 from rwalk.evaluation import check_checkpoint
@@ -40,19 +38,7 @@ def run(*args: str, argv0: str | None = None, env: dict | None = None):
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory) -> Path:
     """An rsl-rl checkpoint and the config.json beside it, as rwalk-train writes them."""
-    from rwalk.rl.config import TrainArgs as Args
-    from rwalk.rl.runner import SafeRunner
-    from rwalk.rl.training import make_env, rsl_rl_config
-
-    args = dataclasses.replace(
-        Args(), num_envs=2, settle_steps=2, max_episode_steps=10, hidden_dims=(8,)
-    )
-    with contextlib.redirect_stdout(io.StringIO()):
-        runner = SafeRunner(make_env(args), rsl_rl_config(args), log_dir=None, device="cpu")
-    folder = tmp_path_factory.mktemp("run")
-    runner.save(str(folder / "model_0.pt"))
-    (folder / "config.json").write_text(json.dumps({"args": dataclasses.asdict(args)}))
-    return folder / "model_0.pt"
+    return write_run(tmp_path_factory.mktemp("run"))
 
 
 def test_play_evaluates_the_base_gait_without_opengl(tmp_path):
