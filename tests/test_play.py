@@ -124,8 +124,8 @@ def test_play_help_shows_the_command_and_every_default():
     flags = [entry.split()[0].rstrip(",") for entry in entries]
     assert flags == [
         "-checkpoint", "-base-gait", "-task", "-command", "-episodes", "-seed",
-        "-terrain-scale", "-max-steps", "-settle-steps", "-video", "-video-seconds", "-json",
-        "-progress",
+        "-terrain-scale", "-max-steps", "-settle-steps", "-video", "-video-seconds", "-viewer",
+        "-json", "-progress",
     ]  # fmt: skip
     for flag, entry in zip(flags, entries, strict=True):
         assert "(default:" in " ".join(entry.split()), flag

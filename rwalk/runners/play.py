@@ -4,6 +4,7 @@
     rwalk-play --checkpoint logs/rwalk/model_149.pt --video docs/policy.mp4
     rwalk-play --checkpoint logs/rwalk/model_149.pt --base-gait   # both, paired
     rwalk-play --checkpoint logs/adaptive/model_299.pt --command 0.2   # ask for 0.2 m/s
+    rwalk-play --checkpoint logs/rwalk/model_299.pt --viewer   # watch it walk, live
 
 (``python -m rwalk.runners.play`` in a checkout.) Checkpoints are rsl-rl's, from
 rwalk-train (model_<it>.pt, with the config.json it writes beside them); the
@@ -18,6 +19,11 @@ Episodes are the spec's (settle 500 steps, up to 1000 steps) on world_train at
 full roughness, with starts spread over the terrain. Only --video needs OpenGL:
 with MUJOCO_GL unset and no display it takes EGL or OSMesa, whichever loads
 (apt-get install libosmesa6), and without one it evaluates without a video.
+
+--viewer shows one robot walking in real time in MuJoCo's viewer instead of
+evaluating (a new episode starts when one ends; close the window to stop). For a
+policy trained with commands, Up and Down change the speed within its command
+range. It needs a display: without one it stops at once, in one line saying so.
 """
 
 from __future__ import annotations
@@ -86,6 +92,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="MP4 or GIF of episode 0, needs OpenGL (default: none)")
     add("--video-seconds", metavar="SECONDS", type=POSITIVE_FLOAT, default=10.0,
         help="length of the video (default: %(default)s)")
+    add("--viewer", action="store_true",
+        help="watch one robot walk in real time in MuJoCo's viewer (needs a display; "
+        "Up/Down change a commanded policy's speed) instead of evaluating (default: off)")
     add("--json", metavar="PATH", type=Path, help="save the table's figures here (default: none)")
     add("--progress", action=argparse.BooleanOptionalAction, default=None,
         help="progress lines on stderr (default: only when stderr is a terminal)")
@@ -93,6 +102,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if not args.checkpoint and not args.base_gait:
         parser.error("give --checkpoint PATH, --base-gait, or both")
+    if args.viewer and (args.video or args.json):
+        parser.error("--viewer watches live: it makes no --video or --json")
     if args.checkpoint:
         try:
             args.task = check_policy(args.checkpoint).task
@@ -118,6 +129,9 @@ def commanded(args: argparse.Namespace) -> tuple[float, float] | None:
 def play(argv: list[str] | None = None) -> list[Evaluation]:
     """Run the command line ``argv``; returns its table's rows."""
     args = parse_args(argv)
+    if args.viewer:
+        view(args)
+        return []
     acts = acts_in(args.checkpoint) if args.checkpoint else {"task": args.task}
     config = presets.evaluation_config(
         **acts, terrain_scale=args.terrain_scale, max_steps=args.max_steps,
@@ -150,6 +164,34 @@ def play(argv: list[str] | None = None) -> list[Evaluation]:
     if args.json:
         atomic_write_text(args.json, json.dumps([asdict(r) for r in rows], indent=2))
     return rows
+
+
+def view(args: argparse.Namespace, launch=None, seconds: float = float("inf")) -> int:
+    """--viewer: one robot, live (``launch``: a stand-in for mujoco.viewer's, in tests);
+    returns the steps shown.
+
+    Raises:
+        OSError: no display, naming what is missing (before anything is built).
+    """
+    from rwalk.viewer import display_missing, watch
+
+    missing = display_missing() if launch is None else None
+    if missing:
+        raise OSError(missing)
+    acts = acts_in(args.checkpoint) if args.checkpoint else {"task": args.task}
+    speed = commanded(args)
+    config = presets.evaluation_config(
+        **acts, terrain_scale=args.terrain_scale, max_steps=args.max_steps,
+        settle_steps=args.settle_steps, command_range=speed,
+    )  # fmt: skip
+    env = BatchedEnv(1, config, seed=args.seed, task=args.task)
+    policy = load_policy(args.checkpoint, env) if args.checkpoint else None
+    trained = args.checkpoint and saved_run(args.checkpoint).command_range
+    speeds = tuple(trained) if trained else None
+    if speeds:
+        print(f"command {speed[0]:.3f} m/s: Up/Down change it by 0.025 within {speeds}")
+    return watch(env, policy, speeds, launch=launch, seconds=seconds,
+                 realtime=launch is None)  # fmt: skip
 
 
 @one_line_errors("rwalk.runners.play")
