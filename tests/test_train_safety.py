@@ -294,6 +294,7 @@ TRAIN_ONLY = [
     ("--settle-pool-fraction", "0", "must be in (0, 1], got 0.0"),
     ("--max-episode-steps", "0", "must be >= 1, got 0"),
     ("--hidden-dims", "0", "must be sizes >= 1, got (0,)"),
+    ("--logger", "neptune", "must be one of tensorboard, wandb, got 'neptune'"),
 ]
 TORCHRL_ONLY = [
     ("--lmbda", "1.5", "must be in [0, 1], got 1.5"),

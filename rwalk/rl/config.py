@@ -56,6 +56,10 @@ class ConfigError(ValueError):
     and the field."""
 
 
+#: rwalk-train's --logger choices (rsl-rl's writers).
+LOGGERS = ("tensorboard", "wandb")
+
+
 @dataclass(frozen=True)
 class RunConfig:
     """Where a training writes, from what it goes on, and how long it runs."""
@@ -86,6 +90,13 @@ class RunConfig:
     dist_timeout: float = DEFAULT_TIMEOUT_S
     """under torchrun: seconds a rank waits for the others (in any exchange) before the
     whole training fails; longer than building the envs or one iteration"""
+    logger: str = "tensorboard"
+    """where the metrics go: tensorboard (event files in --log-dir), or wandb (Weights &
+    Biases through rsl-rl's writer, and the event files too; pip install 'rwalk[wandb]')"""
+    wandb_project: str = "rwalk"
+    """--logger wandb: the W&B project"""
+    run_name: str = ""
+    """--logger wandb: the W&B run's name (default: the --log-dir folder's name)"""
 
     def __post_init__(self) -> None:
         require_at_least(self, 1, "max_iterations", "save_interval")
@@ -97,6 +108,10 @@ class RunConfig:
         require_positive(self, "max_minutes", finite=False)
         if not self.log_dir.strip():
             raise ValueError("--log-dir must name a folder, got ''")
+        if self.logger not in LOGGERS:
+            raise ValueError(f"--logger must be one of {', '.join(LOGGERS)}, got {self.logger!r}")
+        if self.logger == "wandb" and not self.wandb_project.strip():
+            raise ValueError("--wandb-project must name a project, got ''")
 
 
 @dataclass(frozen=True)

@@ -101,8 +101,14 @@ def make_env(args, teacher: Teacher | None = None) -> RslRlVecEnv:
 
 def rsl_rl_config(args, teacher: Teacher | None = None) -> dict[str, Any]:
     """rsl-rl-lib 5.x's training config of ``args`` (a fresh dict): PPO, or a distillation
-    of ``teacher``."""
-    return args.train.to_rsl_rl(args.save_interval, teacher and teacher.args.train)
+    of ``teacher``, with its writer (--logger)."""
+    config = args.train.to_rsl_rl(args.save_interval, teacher and teacher.args.train)
+    if args.logger == "wandb":
+        config["logger"] = {
+            "class_name": "rwalk.rl.wandb_writer:WandbWriter",
+            "project_name": args.wandb_project, "run_name": args.run_name,
+        }  # fmt: skip
+    return config
 
 
 def teacher_of(args) -> Teacher | None:
@@ -256,6 +262,7 @@ def student_args(teacher):
         teacher, teacher=False, distill=teacher.log_dir, actor=teacher.student_actor,
         student_iterations=0, symmetry=False, resume="", max_iterations=teacher.student_iterations,
         log_dir=str(Path(teacher.log_dir) / "student"),
+        run_name=f"{teacher.run_name or Path(teacher.log_dir).name}-student",
     )  # fmt: skip
 
 
@@ -284,6 +291,11 @@ def _claim_run(args, given, group: distributed.Group, stack: contextlib.ExitStac
             if resume is not None:
                 args = resume[2]
             teacher = teacher_of(args)
+            if args.logger == "wandb":
+                from rwalk.rl import wandb_writer
+
+                if not wandb_writer.available():
+                    raise RunSetupError(wandb_writer.MISSING)
             log_dir = Path(args.log_dir)
             stack.enter_context(run_lock(log_dir))
             claim_log_dir(log_dir, resume and resume[:2],
@@ -358,6 +370,10 @@ def _train(args, given, group: distributed.Group, clock: float) -> tuple[Path, A
                       "env": dataclasses.asdict(env.env.config)}  # fmt: skip
             atomic_write_text(log_dir / "config.json", json.dumps(config, indent=2))
         checkpoint = _learn(args, runner, group, clock)
+        if args.logger == "wandb" and group.main:
+            from rwalk.rl.wandb_writer import WandbWriter
+
+            WandbWriter.finish()  # the stage's W&B run ends with it
         if args.export and group.main:
             jit_path, onnx_path = export_policy(runner, log_dir / "exported")
             print(f"[rwalk] exported {jit_path} and {onnx_path} (layout: policy.json)")

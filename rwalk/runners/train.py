@@ -26,8 +26,14 @@ rwalk.presets.TrainingEnv, rwalk.rl.config.TrainConfig); config.json stores
 them, and play and the reports rebuild the policy from it. --resume goes on with
 the run's own task, world, PPO and model settings from its config.json: only the
 run settings (--log-dir, --seed, --resume, --overwrite, --max-iterations,
---max-minutes, --save-interval, --threads, --export, --dist-timeout) and
---num-envs may change; another value of any other flag is refused, naming it.
+--max-minutes, --save-interval, --threads, --export, --dist-timeout, --logger,
+--wandb-project, --run-name) and --num-envs may change; another value of any
+other flag is refused, naming it.
+
+--logger wandb sends the metrics to Weights & Biases as well (rsl-rl's writer; pip
+install 'rwalk[wandb]'; WANDB_MODE=offline keeps them local): one W&B run per
+training stage, named --run-name (default: the --log-dir folder's name; a
+--student-iterations student stage: that name + "-student").
 
 Writes to --log-dir: TensorBoard events (every reward term, episode length, fall
 rate, forward velocity, terrain levels), checkpoints, config.json, and at the

@@ -58,7 +58,7 @@ Args = combine(
     "Args",
     {"run": RunConfig, "env": TrainingEnv, "train": TorchRLConfig},
     defaults={"log_dir": "logs/torchrl", "max_iterations": 50, "num_envs": 256},
-    exclude=("export", "dist_timeout"),
+    exclude=("export", "dist_timeout", "logger", "wandb_project", "run_name"),
     doc="A TorchRL PPO run: every field is a command-line flag (--num-envs, ...), checked on "
     "creation by the config it belongs to (RunConfig, TrainingEnv, TorchRLConfig).",
     namespace={"check": _check},
