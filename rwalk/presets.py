@@ -180,6 +180,9 @@ class TrainingEnv:
     costs: bool = False
     """add the gait costs to the reward: swing clearance below a target above the ground,
     feet slipping, servo power (rwalk.rewards.GaitCosts)"""
+    clearance_weight: float = GaitCosts.clearance
+    """--costs: the clearance cost's size, per metre that a mid-swing foot passes below
+    the target above the ground"""
     terrain_kinds: tuple[str, ...] = dataclasses.field(
         default=DEFAULT_KINDS, metadata={"item": str}
     )
@@ -199,6 +202,12 @@ class TrainingEnv:
         require_in(self, "terrain_scale", 0.0, 1.0)
         require_in(self, "settle_pool_fraction", 0.0, 1.0, low_open=True)
         get_task(self.task)  # ValueError listing the known tasks
+        if self.clearance_weight != GaitCosts.clearance and not self.costs:
+            raise ValueError("--clearance-weight needs --costs: it weighs one of the gait costs")
+        try:
+            GaitCosts(clearance=self.clearance_weight)
+        except ValueError as error:
+            raise ValueError(f"--clearance-weight: {error}") from None
         if self.gait_action not in GAIT_ACTIONS:
             raise ValueError(
                 f"--gait-action must be one of {', '.join(GAIT_ACTIONS)}, got {self.gait_action!r}"
@@ -217,6 +226,11 @@ class TrainingEnv:
                 f"--command-range must be speeds within ±{MAX_SPEED:g} m/s, got "
                 f"{self.command_range}"
             )
+
+    @property
+    def gait_costs(self) -> GaitCosts | None:
+        """The reward's gait costs (None: without --costs)."""
+        return GaitCosts(clearance=self.clearance_weight) if self.costs else None
 
     @property
     def commands(self) -> tuple[float, float] | None:
@@ -238,6 +252,6 @@ class TrainingEnv:
             command_range=self.commands,
             start_spread=self.start_spread,
             levels=TerrainLevels(kinds=self.terrain_kinds, demote=self.demote),
-            costs=GaitCosts() if self.costs else None,
+            costs=self.gait_costs,
             gait_action=self.gait_action,
         )

@@ -129,6 +129,13 @@ def test_the_spec_s_envs_have_no_costs_and_training_adds_them_on_request():
     assert EnvConfig().costs is None and AdaptiveGaitConfig().costs is None
     assert TrainingEnv().config().costs is None
     assert TrainingEnv(costs=True).config().costs == GaitCosts()
+    assert TrainingEnv(costs=True, clearance_weight=6000.0).config().costs == GaitCosts(
+        clearance=6000.0
+    )
+    with pytest.raises(ValueError, match=r"--clearance-weight needs --costs"):
+        TrainingEnv(clearance_weight=6000.0)
+    with pytest.raises(ValueError, match=r"--clearance-weight: GaitCosts\.clearance .* got -1\.0"):
+        TrainingEnv(costs=True, clearance_weight=-1.0)
 
 
 # ------------------------------------------------------------------ the target action
