@@ -202,12 +202,13 @@ class TrainingEnv:
         require_in(self, "terrain_scale", 0.0, 1.0)
         require_in(self, "settle_pool_fraction", 0.0, 1.0, low_open=True)
         get_task(self.task)  # ValueError listing the known tasks
-        if self.clearance_weight != GaitCosts.clearance and not self.costs:
+        if self.costs:
+            try:
+                GaitCosts(clearance=self.clearance_weight)
+            except ValueError as error:
+                raise ValueError(f"--clearance-weight: {error}") from None
+        elif self.clearance_weight != GaitCosts.clearance:
             raise ValueError("--clearance-weight needs --costs: it weighs one of the gait costs")
-        try:
-            GaitCosts(clearance=self.clearance_weight)
-        except ValueError as error:
-            raise ValueError(f"--clearance-weight: {error}") from None
         if self.gait_action not in GAIT_ACTIONS:
             raise ValueError(
                 f"--gait-action must be one of {', '.join(GAIT_ACTIONS)}, got {self.gait_action!r}"

@@ -81,7 +81,8 @@ def watch(
     core = env.core
     model, data = core.model, mujoco.MjData(core.model)
     core.reset()  # draws the episode's command, where the keys start
-    if policy is not None and hasattr(policy, "reset"):
+    remembers = policy is not None and hasattr(policy, "reset")  # a recurrent policy
+    if remembers:
         policy.reset()
     target = core.task.target  # env 0's commanded speed, which its policy reads
     keys = SpeedKeys(float(target[0]), speeds) if speeds is not None else None
@@ -94,7 +95,7 @@ def watch(
             if keys is not None:  # also after a reset, which draws the run's own command
                 target[0] = keys.speed
             _, end = episodes.step(core, zeros if policy is None else policy())
-            if end is not None and policy is not None and hasattr(policy, "reset"):
+            if end is not None and remembers:
                 dones = torch.zeros(core.num_envs, dtype=torch.bool)
                 dones[end.ids] = True
                 policy.reset(dones)  # a new episode starts without the old one's memory

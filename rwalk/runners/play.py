@@ -126,18 +126,24 @@ def commanded(args: argparse.Namespace) -> tuple[float, float] | None:
     return (speed, speed)
 
 
+def evaluation_env(args: argparse.Namespace, num_envs: int) -> BatchedEnv:
+    """``num_envs`` envs of the evaluation world the command line asks for, reading the
+    action as the checkpoint's run did."""
+    acts = acts_in(args.checkpoint) if args.checkpoint else {"task": args.task}
+    config = presets.evaluation_config(
+        **acts, terrain_scale=args.terrain_scale, max_steps=args.max_steps,
+        settle_steps=args.settle_steps, command_range=commanded(args),
+    )  # fmt: skip
+    return BatchedEnv(num_envs, config, seed=args.seed, task=args.task)
+
+
 def play(argv: list[str] | None = None) -> list[Evaluation]:
     """Run the command line ``argv``; returns its table's rows."""
     args = parse_args(argv)
     if args.viewer:
         view(args)
         return []
-    acts = acts_in(args.checkpoint) if args.checkpoint else {"task": args.task}
-    config = presets.evaluation_config(
-        **acts, terrain_scale=args.terrain_scale, max_steps=args.max_steps,
-        settle_steps=args.settle_steps, command_range=commanded(args),
-    )  # fmt: skip
-    env = BatchedEnv(args.episodes, config, seed=args.seed, task=args.task)
+    env = evaluation_env(args, args.episodes)
     env.core.settle_progress = Progress("settling starts", "physics steps", enabled=args.progress)
     recorder = None
     if args.video:
@@ -173,23 +179,18 @@ def view(args: argparse.Namespace, launch=None, seconds: float = float("inf")) -
     Raises:
         OSError: no display, naming what is missing (before anything is built).
     """
-    from rwalk.viewer import display_missing, watch
+    from rwalk.viewer import SPEED_STEP, display_missing, watch
 
     missing = display_missing() if launch is None else None
     if missing:
         raise OSError(missing)
-    acts = acts_in(args.checkpoint) if args.checkpoint else {"task": args.task}
-    speed = commanded(args)
-    config = presets.evaluation_config(
-        **acts, terrain_scale=args.terrain_scale, max_steps=args.max_steps,
-        settle_steps=args.settle_steps, command_range=speed,
-    )  # fmt: skip
-    env = BatchedEnv(1, config, seed=args.seed, task=args.task)
+    env = evaluation_env(args, 1)
     policy = load_policy(args.checkpoint, env) if args.checkpoint else None
     trained = args.checkpoint and saved_run(args.checkpoint).command_range
     speeds = tuple(trained) if trained else None
     if speeds:
-        print(f"command {speed[0]:.3f} m/s: Up/Down change it by 0.025 within {speeds}")
+        speed = commanded(args)[0]
+        print(f"command {speed:.3f} m/s: Up/Down change it by {SPEED_STEP} within {speeds}")
     return watch(env, policy, speeds, launch=launch, seconds=seconds,
                  realtime=launch is None)  # fmt: skip
 
