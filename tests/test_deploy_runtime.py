@@ -18,13 +18,24 @@ from rwalk.deploy import SENSOR_LAYOUT, Controller
 TORCH_FREE = "RWALK_DEPLOY_EXPORTS" in os.environ
 
 
-@pytest.fixture(scope="module")
-def exports(tmp_path_factory) -> Path:
+def export_folders(tmp_path_factory) -> Path:
+    """The test exports: RWALK_DEPLOY_EXPORTS in the torch-free run, else made once a
+    session (tests/deploy_exports.py; tests/test_deploy_hostile.py shares them)."""
     if TORCH_FREE:
         return Path(os.environ["RWALK_DEPLOY_EXPORTS"])
-    from deploy_exports import make_exports
+    root = tmp_path_factory.getbasetemp() / "deploy_exports"
+    if not (root / "made").is_file():
+        from deploy_exports import make_exports
 
-    return make_exports(tmp_path_factory.mktemp("exports"))
+        root.mkdir(exist_ok=True)
+        make_exports(root)
+        (root / "made").touch()
+    return root
+
+
+@pytest.fixture(scope="module")
+def exports(tmp_path_factory) -> Path:
+    return export_folders(tmp_path_factory)
 
 
 @pytest.fixture
@@ -137,12 +148,18 @@ def test_missing_and_mismatched_files_are_named(exports, tmp_path):
     with pytest.raises(ValueError, match="has no deploy section"):
         Controller(folder)
     folder = _copy(exports, tmp_path / "d")
+    _edit(folder, lambda layout: layout["deploy"].update(task="stand", runtime="hop"))
+    with pytest.raises(ValueError, match=r"'stand' policy with deploy\.runtime 'hop'; "):
+        Controller(folder)
+    folder = _copy(exports, tmp_path / "d1")  # an export from before deploy.runtime: its task's
+    _edit(folder, lambda layout: layout["deploy"].pop("runtime"))
+    assert Controller(folder).gait.period > 0
     _edit(folder, lambda layout: layout["deploy"].update(task="stand"))
-    with pytest.raises(ValueError, match=r"'stand' policy; rwalk\.deploy runs"):
+    with pytest.raises(ValueError, match=r"'stand' policy with deploy\.runtime None"):
         Controller(folder)
     folder = _copy(exports, tmp_path / "d2", "adaptive")
     _edit(folder, lambda layout: layout["deploy"]["adaptive"].pop("delta"))
-    with pytest.raises(ValueError, match=r"deploy section is incomplete .*KeyError: 'delta'"):
+    with pytest.raises(ValueError, match=r"policy\.json': deploy\.adaptive\.delta is missing$"):
         Controller(folder)
     folder = _copy(exports, tmp_path / "e")
     _edit(folder, lambda layout: layout["input"]["shape"].__setitem__(1, 70))
