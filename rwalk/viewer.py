@@ -3,9 +3,12 @@
 ``watch(env, policy)`` steps env 0 of a batched env at the control rate, shows
 it in ``mujoco.viewer.launch_passive`` and starts a new episode when one ends.
 For a policy that reads a speed command, Up and Down change the command by
-``SPEED_STEP`` within the run's command range while it walks. The viewer needs a
-display: where none exists (no ``DISPLAY`` or ``WAYLAND_DISPLAY`` on Linux),
-``display_missing`` names what is missing before anything opens.
+``SPEED_STEP`` within the run's command range while it walks. The camera follows
+the torso from ``FOLLOW_DISTANCE`` away (the robot is about 6 cm tall on a 10 m
+map), and one line on stdout says what the keys do. The viewer needs a display
+that GLFW can open a window on: ``display_missing`` says what is missing, or why
+the window cannot open, before anything opens (MuJoCo's own error would end the
+process and write ``MUJOCO_LOG.TXT`` into the current directory).
 """
 
 from __future__ import annotations
@@ -20,22 +23,77 @@ import mujoco
 import torch
 
 from rwalk import episodes
+from rwalk.constants import TORSO_BODY
 
 #: GLFW's key codes, which ``launch_passive`` hands to its key callback.
 KEY_UP, KEY_DOWN = 265, 264
 SPEED_STEP = 0.025
 """m/s per key press."""
+FOLLOW_DISTANCE = 0.5
+"""m from the torso to the viewer's tracking camera."""
+FOLLOW_ELEVATION, FOLLOW_AZIMUTH = -20.0, 135.0
+"""degrees: the camera's pitch (down) and heading about the vertical, as --video's."""
 
 
 def display_missing() -> str | None:
-    """What the viewer lacks here (None: a display is there to open a window on)."""
+    """What the viewer lacks here, or why its window cannot open (None: it can)."""
     if sys.platform in ("darwin", "win32"):
         return None
-    if any(os.environ.get(name) for name in ("DISPLAY", "WAYLAND_DISPLAY")):
+    displays = [f"{name}={os.environ[name]}" for name in ("DISPLAY", "WAYLAND_DISPLAY")
+                if os.environ.get(name)]  # fmt: skip
+    if not displays:
+        return (
+            "--viewer needs a display, and neither DISPLAY nor WAYLAND_DISPLAY is set "
+            "(run it on a desktop or over ssh -X; --video films an episode without one)"
+        )
+    why = window_error()
+    if why is None:
         return None
     return (
-        "--viewer needs a display, and neither DISPLAY nor WAYLAND_DISPLAY is set "
-        "(run it on a desktop or over ssh -X; --video films an episode without one)"
+        f"--viewer cannot open a window on {' '.join(displays)} ({why}); "
+        "--video films an episode without one"
+    )
+
+
+def window_error() -> str | None:
+    """Why GLFW, which the viewer draws with, cannot open a hidden OpenGL window here
+    (None: it can). It ends in ``glfwTerminate``, which closes every GLFW window of this
+    process: ask before opening any."""
+    try:
+        import glfw  # here, not at import: it loads the GLFW library
+    except ImportError as error:
+        return f"no GLFW: {error}"
+    errors: list[str] = []
+    previous = glfw.set_error_callback(lambda code, text: errors.append(text.decode()))
+    try:
+        if not glfw.init():
+            return errors[-1] if errors else "GLFW failed to initialise"
+        glfw.default_window_hints()
+        glfw.window_hint(glfw.VISIBLE, glfw.FALSE)
+        window = glfw.create_window(16, 16, "rwalk", None, None)
+        if not window:
+            return errors[-1] if errors else "GLFW failed to open a window"
+        glfw.destroy_window(window)
+        return None
+    finally:
+        glfw.terminate()
+        glfw.set_error_callback(previous)
+
+
+def follow_torso(camera: mujoco.MjvCamera, model: mujoco.MjModel) -> None:
+    """Make ``camera`` track the torso of ``model``'s robot from ``FOLLOW_DISTANCE``."""
+    camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+    camera.trackbodyid = model.body(TORSO_BODY).id
+    camera.distance = FOLLOW_DISTANCE
+    camera.elevation, camera.azimuth = FOLLOW_ELEVATION, FOLLOW_AZIMUTH
+
+
+def keys_help(speeds: tuple[float, float] | None) -> str:
+    """The one line that says what the viewer's keys do."""
+    speed = f"Up/Down: speed -/+{SPEED_STEP} m/s within {speeds}; " if speeds else ""
+    return (
+        f"viewer: the camera follows the robot; {speed}mouse: orbit and zoom; "
+        "Esc: free camera; Tab: show the panels; close the window to stop"
     )
 
 
@@ -73,8 +131,14 @@ def watch(
 
     Returns:
         The control steps shown.
+
+    Raises:
+        OSError: (``launch`` None) no window can open here, saying why.
     """
     if launch is None:
+        missing = display_missing()
+        if missing:
+            raise OSError(missing)
         from mujoco import viewer as mujoco_viewer  # here, not at import: it loads GLFW
 
         launch = mujoco_viewer.launch_passive
@@ -89,7 +153,14 @@ def watch(
     limit = seconds / core.control_dt
     zeros = torch.zeros(core.num_envs, core.task.action_dim)
     steps = 0
-    with launch(model, data, key_callback=keys) as viewer, torch.inference_mode():
+    core.sim.batch.get_data(0, data)  # the first frame shows env 0 where it starts
+    print(keys_help(speeds), flush=True)
+    with (
+        launch(model, data, key_callback=keys, show_left_ui=False, show_right_ui=False) as viewer,
+        torch.inference_mode(),
+    ):
+        with viewer.lock():  # the viewer's thread draws with this camera
+            follow_torso(viewer.cam, model)
         while viewer.is_running() and steps < limit:
             started = time.perf_counter()
             if keys is not None:  # also after a reset, which draws the run's own command
