@@ -16,8 +16,9 @@ onnxruntime's on the same inputs (a few float32 ulp), a gap the closed loop then
 grows (the walk is chaotic).
 
 ``walk`` runs the runtime alone on any world XML from the robot's standing
-keyframe: falls and velocity error of a deployed policy on a world of the user's
-choice.
+keyframe, settled first as the env settles its starts (``Settle``: the env's
+zero-residual gait, here on the world's own ``mj_step``): falls and velocity error
+of a deployed policy on a world of the user's choice.
 """
 
 from __future__ import annotations
@@ -38,6 +39,11 @@ from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.physics import Physics
 from rwalk.rewards import fallen, quat_to_rpy
 from rwalk.rl.rsl_rl_env import RslRlVecEnv
+from rwalk.starts import SETTLE_ATTEMPTS, SettleError
+
+#: Most physics steps a world may take per runtime substep (``walk``: each target is held
+#: over as many of the world's timesteps as fill the runtime's).
+MAX_HOLD = 1000
 
 
 @dataclass(frozen=True)
@@ -142,6 +148,52 @@ class Walk:
     forward_velocity: float
 
 
+@dataclass(frozen=True)
+class Settle:
+    """How the env settles a start, for ``walk`` to repeat on a world's own ``mj_step``:
+    ``settle_steps`` control periods of the zero-residual gait from phase 0."""
+
+    ctrl: np.ndarray
+    """The servo targets of settling, one row per runtime substep
+    (``rwalk.starts.Starts.settle_ctrl``). Shape: (settle_steps x K, 12)."""
+    tick: int
+    """The gait tick where settling leaves a start (``rwalk.world.World.settled_tick``)."""
+
+    @classmethod
+    def of(cls, core) -> Settle:
+        """The settling of ``core``'s starts (its config's settle_steps)."""
+        return cls(np.asarray(core.starts.settle_ctrl), int(core.world.settled_tick))
+
+
+def hold_of(world: Path | str, timestep: float, dt: float) -> int:
+    """The physics steps of ``world`` (its ``timestep``) that fill one runtime substep of
+    ``dt`` seconds.
+
+    Raises:
+        ValueError: naming the world, unless the timestep is a number > 0 that divides
+            ``dt`` into at most MAX_HOLD steps.
+    """
+    ratio = dt / timestep if timestep > 0 and math.isfinite(timestep) else math.nan
+    hold = round(ratio) if math.isfinite(ratio) else 0
+    if not (1 <= hold <= MAX_HOLD and math.isclose(hold * timestep, dt, rel_tol=1e-9)):
+        raise ValueError(f"{world}: timestep {timestep:g} s does not divide the runtime's "
+                         f"{dt:g} s into at most {MAX_HOLD} steps")  # fmt: skip
+    return hold
+
+
+def check_world(world: Path, dt: float) -> None:
+    """Fail before any walk unless the runtime can walk on ``world``: it loads, has the
+    robot's standing keyframe, and its timestep divides the runtime's ``dt``.
+
+    Raises:
+        ValueError: naming the world (MuJoCo's own message for an XML it cannot load).
+    """
+    model = mujoco.MjModel.from_xml_path(str(world))
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, STAND_KEYFRAME) < 0:
+        raise ValueError(f"{world}: no keyframe {STAND_KEYFRAME!r} (the robot's standing pose)")
+    hold_of(world, float(model.opt.timestep), dt)
+
+
 def walk(
     folder: Path,
     world: Path,
@@ -150,44 +202,80 @@ def walk(
     v_target: float,
     seed: int = 0,
     physics: Physics | None = None,
+    settle: Settle | None = None,
 ) -> Walk:
-    """``count`` episodes of at most ``steps`` periods from the standing keyframe (x, y
-    jittered ±5 cm by ``seed``), gait phase 0: falls (|roll| or |pitch| > π/3) and
-    velocity error. ``physics``: settings applied to the world's model (each of the
-    runtime's targets is then held over as many of its substeps as fill ``dt``)."""
+    """``count`` episodes of at most ``steps`` periods: falls (|roll| or |pitch| > π/3)
+    and velocity error.
+
+    Each starts from the standing keyframe (x, y jittered ±5 cm by ``seed``) and is
+    settled as the env settles its starts: the rows of ``settle`` held in turn, a start
+    that falls or diverges drawn again (up to SETTLE_ATTEMPTS times); the policy then
+    walks from the gait tick where settling leaves it, as in the env's evaluation.
+    ``settle`` None: no settling, the gait from phase 0. ``physics``: settings applied to
+    the world's model (each of the runtime's targets is then held over as many of its
+    substeps as fill ``dt``).
+
+    Raises:
+        ValueError: naming the world, for a timestep that does not divide the runtime's.
+        SettleError: naming the world, if starts fall while settling in every attempt.
+    """
     model = mujoco.MjModel.from_xml_path(str(world))
     if physics is not None:
         physics.apply(model)
     data = mujoco.MjData(model)
     controller = Controller(folder)
-    hold = round(controller.dt / model.opt.timestep)
-    if not math.isclose(hold * model.opt.timestep, controller.dt, rel_tol=1e-9):
-        raise ValueError(f"{world}: timestep {model.opt.timestep:g} s does not divide the "
-                         f"runtime's {controller.dt:g} s")  # fmt: skip
+    hold = hold_of(world, float(model.opt.timestep), controller.dt)
     if "command" in controller.pieces:
         controller.command = v_target
     rng = np.random.default_rng(seed)
     falls, errors, speeds = np.zeros(count), np.zeros(count), np.zeros(count)
     for episode in range(count):
-        mujoco.mj_resetDataKeyframe(model, data, model.keyframe(STAND_KEYFRAME).id)
-        data.qpos[:2] += rng.uniform(-0.05, 0.05, 2)
-        mujoco.mj_forward(model, data)
-        targets = controller.reset(data.sensordata)
+        readings = _settled_start(model, data, rng, hold, settle, world)
+        controller.reset(readings, tick=0 if settle is None else settle.tick)
         velocities = []
         for _ in range(steps):
-            for row in targets:
+            for row in controller.step(readings):
                 data.ctrl[:] = row
                 mujoco.mj_step(model, data, nstep=hold)
             readings = data.sensordata.copy()
             velocities.append(float(readings[OBS_LINVEL.start]))
-            if bool(fallen(quat_to_rpy(tuple(readings[OBS_QUAT].tolist())))):
+            if _fallen(readings):
                 falls[episode] = 1.0
                 break
-            targets = controller.step(readings)
         errors[episode] = np.mean(np.abs(np.asarray(velocities) - v_target))
         speeds[episode] = np.mean(velocities)
     return Walk(str(world), count, float(falls.mean()), _se(falls), float(errors.mean()),
                 _se(errors), float(speeds.mean()))  # fmt: skip
+
+
+def _fallen(readings: np.ndarray) -> bool:
+    """Whether the robot of these readings fell (or its state diverged)."""
+    if not np.isfinite(readings).all():
+        return True
+    return bool(fallen(quat_to_rpy(tuple(readings[OBS_QUAT].tolist()))))
+
+
+def _settled_start(model, data, rng: np.random.Generator, hold: int, settle: Settle | None,
+                   world: Path) -> np.ndarray:  # fmt: skip
+    """Place a start in ``data`` (the standing keyframe, x and y jittered by ``rng``) and
+    settle it (``walk``); returns its readings, as ``mj_step`` leaves them."""
+    key = model.keyframe(STAND_KEYFRAME).id
+    for _ in range(SETTLE_ATTEMPTS):
+        mujoco.mj_resetDataKeyframe(model, data, key)
+        data.qpos[:2] += rng.uniform(-0.05, 0.05, 2)
+        mujoco.mj_forward(model, data)
+        if settle is None:
+            return data.sensordata.copy()
+        for row in settle.ctrl:
+            data.ctrl[:] = row
+            mujoco.mj_step(model, data, nstep=hold)
+        readings = data.sensordata.copy()
+        if not _fallen(readings):
+            return readings
+    raise SettleError(
+        f"{world}: starts fell or diverged while settling ({len(settle.ctrl)} substeps of "
+        f"the base gait) in each of {SETTLE_ATTEMPTS} attempts"
+    )
 
 
 def step_latency(folder: Path, world: Path, steps: int) -> dict[str, float]:

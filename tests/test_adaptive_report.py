@@ -12,6 +12,7 @@ from rwalk import adaptive_evaluation as ae
 from rwalk.adaptive_evaluation import GaitStats, adaptation, walk_levels
 from rwalk.levels import TerrainLevels
 from rwalk.runners import adaptive_report, train
+from rwalk.tasks import AdaptiveGaitConfig
 
 TINY = ["--num-envs", "10", "--num-steps-per-env", "4", "--settle-steps", "2",
         "--max-episode-steps", "30", "--hidden-dims", "16", "--save-interval", "1",
@@ -53,7 +54,8 @@ def test_the_gait_statistics_are_per_kind_and_level():
         return HoldTargets(targets, env.core.num_envs)
 
     levels = TerrainLevels(levels=2, seed=1234)
-    stats = walk_levels(policy_for, "target", False, episodes=2, seed=5, steps=60, levels=levels)
+    stats = walk_levels(policy_for, AdaptiveGaitConfig(gait_action="target"), False, episodes=2,
+                        seed=5, steps=60, levels=levels)  # fmt: skip
     assert [(s.kind, s.level) for s in stats] == [
         (kind, level) for level in range(2) for kind in ae.TERRAIN_KINDS
     ]
@@ -121,6 +123,28 @@ def test_a_checkpoint_of_the_other_task_is_refused_naming_both(checkpoints, caps
     assert raised.value.code == 2
     error = capsys.readouterr().err
     assert "--residual" in error and "'adaptive_gait' policy, not a 'residual_walk' one" in error
+
+
+def test_an_out_folder_it_could_not_write_is_refused_before_any_row(
+    checkpoints, tmp_path, monkeypatch, capsys
+):
+    def never(*args, **kwargs):
+        raise AssertionError("a row ran before the refusal")
+
+    monkeypatch.setattr(adaptive_report, "compare", never)
+    monkeypatch.setattr(adaptive_report, "gait_by_terrain", never)
+    residual, adaptive = checkpoints
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "out" / "adaptive.json").mkdir(parents=True)
+    for out, why in ((tmp_path / "file", "file' is not a folder"),
+                     (tmp_path / "file" / "docs", "file' is not a folder"),
+                     (tmp_path / "out", "adaptive.json' is a folder")):  # fmt: skip
+        with pytest.raises(SystemExit) as raised:
+            adaptive_report.main(["--residual", str(residual), "--adaptive", str(adaptive),
+                                  *QUICK, "--out", str(out)])  # fmt: skip
+        error = capsys.readouterr().err.strip()
+        assert raised.value.code == 2 and "\n" not in error
+        assert "error: --out " in error and why in error
 
 
 def test_a_target_policy_is_refused_by_an_env_that_reads_deltas(checkpoints):

@@ -64,17 +64,30 @@ def test_an_invalid_only_is_a_parse_error_naming_it(only, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["--only", only])
     assert exit_info.value.code == 2
-    err = capsys.readouterr().err
-    assert "argument --only: expected 'mode,N,threads'" in err and f"got {only!r}" in err
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "error: --only must be 'mode,N,threads'" in err
+    assert err.endswith(f"got {only!r}")
 
 
-@pytest.mark.parametrize("seconds", ["0", "-1", "nan", "inf", "soon"])
+@pytest.mark.parametrize("seconds", ["0", "-1", "nan", "inf", "3601", "soon"])
 def test_the_window_must_be_a_positive_number(seconds, capsys):
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit) as exit_info:
         main(["--seconds", seconds])
-    assert f"argument --seconds: expected a number of seconds > 0, got {seconds!r}" in (
-        capsys.readouterr().err
-    )
+    err = capsys.readouterr().err.strip()
+    assert exit_info.value.code == 2 and "\n" not in err
+    shown = "['soon']" if seconds == "soon" else str(float(seconds))  # the value, as parsed
+    assert "error: --seconds must be " in err and err.endswith(f"got {shown}")
+    if seconds != "soon":
+        assert "a number of seconds > 0 and at most 3600" in err
+
+
+def test_an_unwritable_json_is_refused_before_the_sweep(tmp_path, capsys):
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--only", "b,1,1", "--json", str(tmp_path / "file" / "bench.json")])
+    printed = capsys.readouterr()
+    assert exit_info.value.code == 2 and "error: --json " in printed.err
+    assert "file' is not a folder" in printed.err and printed.out == ""  # no run started
 
 
 def _row(mode, n, threads, env_steps_per_s, **extra):

@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 import torch
@@ -17,6 +18,7 @@ from conftest import write_run
 from deploy_exports import make_exports
 
 from rwalk import presets, sim2sim
+from rwalk.deploy import Controller
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.gait import BezierGaitController
 from rwalk.kinematics import LegGeometry
@@ -102,6 +104,49 @@ def test_the_walk_table_checks_the_band_by_hand():
     assert "| no |" in outside  # fmt: skip
 
 
+def test_the_walks_settle_their_starts_as_the_env_does(exports, monkeypatch):
+    """The runtime's walks begin where the env's evaluation begins an episode: after its
+    settle steps of the zero-residual gait from phase 0 (here on the world's own mj_step),
+    the gait at the tick where settling leaves a start. They began from standing, at phase 0."""
+    core = _env(n=1).core  # 50 settle steps
+    world, settle = core.world, sim2sim.Settle.of(core)
+    np.testing.assert_array_equal(settle.ctrl, world.base_gait_ctrl(50 * world.decimation))
+    assert settle.tick == world.settled_tick == 50 * world.decimation % world.controller.period
+    assert settle.tick != 0
+    applied, resets = [], []
+    step, reset = mujoco.mj_step, Controller.reset
+
+    def spy_step(model, data, nstep=1):
+        applied.append(data.ctrl.copy())
+        step(model, data, nstep)
+
+    def spy_reset(self, readings, tick=0):
+        resets.append((len(applied), tick))
+        return reset(self, readings, tick)
+
+    monkeypatch.setattr(mujoco, "mj_step", spy_step)
+    monkeypatch.setattr(Controller, "reset", spy_reset)
+    walked = sim2sim.walk(exports / "mlp", Path("model/world_flat.xml"), 1, 3, 0.1333,
+                          settle=settle)  # fmt: skip
+    assert walked.episodes == 1
+    (start,) = resets  # one episode: the policy takes over after the settling substeps
+    assert start == (len(settle.ctrl), settle.tick)
+    np.testing.assert_array_equal(np.array(applied[: len(settle.ctrl)]), settle.ctrl)
+    assert len(applied) > len(settle.ctrl)  # then the policy's periods
+
+
+def test_a_world_whose_timestep_does_not_fit_the_runtime_is_named(exports, tmp_path):
+    for name in ("robot.xml", "world_flat.xml"):
+        shutil.copy(ROOT / "model" / name, tmp_path / name)
+    robot = tmp_path / "robot.xml"
+    robot.write_text(robot.read_text().replace('timestep="0.004"', 'timestep="1e-300"'))
+    world = tmp_path / "world_flat.xml"
+    for check in (lambda: sim2sim.walk(exports / "mlp", world, 1, 2, 0.1),  # was a TypeError
+                  lambda: sim2sim.check_world(world, 0.004)):  # fmt: skip
+        with pytest.raises(ValueError, match=r"timestep 1e-300 s does not divide the runtime's"):
+            check()
+
+
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory) -> Path:
     """A robust GRU run's checkpoint and config.json, as rwalk-train writes them."""
@@ -109,9 +154,13 @@ def checkpoint(tmp_path_factory) -> Path:
     return write_run(tmp_path_factory.mktemp("run"), actor="gru", rnn_hidden_dim=8)
 
 
-def test_rwalk_sim2sim_exports_compares_and_walks(checkpoint, tmp_path, capsys):
+def test_rwalk_sim2sim_exports_compares_and_walks(checkpoint, tmp_path, capsys, monkeypatch):
     from rwalk.runners.sim2sim import main
 
+    settles, walk = [], sim2sim.walk
+    monkeypatch.setattr(
+        sim2sim, "walk", lambda *a, **k: settles.append(k["settle"]) or walk(*a, **k)
+    )
     out = tmp_path / "out"
     main([str(checkpoint), "--out", str(out), "--episodes", "2", "--steps", "30",
           "--world", "model/world_flat.xml", "--walk-episodes", "2",
@@ -120,6 +169,11 @@ def test_rwalk_sim2sim_exports_compares_and_walks(checkpoint, tmp_path, capsys):
     assert "closed loop: 2/2 episodes bit-identical" in printed
     assert "| world_flat.xml | env |" in printed and "| world_flat.xml | reference |" in printed
     saved = json.loads((tmp_path / "s2s.json").read_text())
+    assert saved["settle_steps"] == presets.EVALUATION.settle_steps  # the walks' settling too
+    substeps = json.loads((out / "exported" / "policy.json").read_text())["deploy"]["substeps"]
+    assert len(settles) == 2 and all(
+        len(s.ctrl) == presets.EVALUATION.settle_steps * substeps for s in settles
+    )
     assert 0.0 <= saved["policy_gap"] < 1e-5  # onnxruntime's float32 matmuls against torch's
     assert [w["physics"] for w in saved["walks"]] == ["env", "reference"]
     assert sorted(p.name for p in (out / "exported").iterdir()) == [
@@ -134,6 +188,61 @@ def test_rwalk_sim2sim_refuses_a_missing_world_in_one_line(checkpoint, capsys):
         main([str(checkpoint), "--world", "nope.xml"])
     assert exit_info.value.code == 2
     assert "--world: 'nope.xml' not found" in capsys.readouterr().err
+
+
+def refused(argv: list[str], capsys) -> str:
+    """rwalk-sim2sim ``argv`` (in this process): the one line it exits 2 with."""
+    from rwalk.runners.sim2sim import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    err = capsys.readouterr().err.strip()
+    assert exit_info.value.code == 2 and "\n" not in err, err
+    return err
+
+
+def test_rwalk_sim2sim_refuses_what_it_could_not_write_before_evaluating(
+    checkpoint, tmp_path, monkeypatch, capsys
+):
+    def never(*args, **kwargs):
+        raise AssertionError("evaluated before refusing")
+
+    monkeypatch.setattr("rwalk.export.export_policy", never)
+    monkeypatch.setattr(sim2sim, "closed_loop", never)
+    (tmp_path / "file").write_text("x")
+    flags = [str(checkpoint), "--episodes", "1", "--steps", "2", "--world"]
+    err = refused([*flags, "--json", str(tmp_path / "file" / "s2s.json")], capsys)
+    assert "error: --json " in err and "file' is not a folder" in err
+    err = refused([*flags, "--json", str(tmp_path)], capsys)
+    assert "error: --json " in err and "is a folder" in err
+    err = refused([*flags, "--out", str(tmp_path / "file")], capsys)  # it was a traceback
+    assert "error: --out " in err and "file' is not a folder" in err
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "exported").write_text("x")
+    err = refused([*flags, "--out", str(tmp_path / "out")], capsys)
+    assert "error: --out " in err and "exported' is not a folder" in err
+
+
+def test_rwalk_sim2sim_refuses_a_teacher_before_exporting(tmp_path, capsys):
+    teacher = write_run(tmp_path, teacher=True)
+    out = tmp_path / "out"
+    err = refused([str(teacher), "--out", str(out), "--world"], capsys)
+    assert "is a teacher" in err and "'physics', 'heights'" in err and "privileged" in err
+    assert not out.exists()  # nothing written
+
+
+def test_rwalk_sim2sim_names_a_world_of_an_absurd_timestep_in_one_line(
+    checkpoint, tmp_path, capsys
+):
+    for name in ("robot.xml", "world_flat.xml"):
+        shutil.copy(ROOT / "model" / name, tmp_path / name)
+    robot = tmp_path / "robot.xml"
+    robot.write_text(robot.read_text().replace('timestep="0.004"', 'timestep="1e-300"'))
+    out = tmp_path / "out"
+    err = refused([str(checkpoint), "--out", str(out), "--episodes", "1", "--steps", "2",
+                   "--world", str(tmp_path / "world_flat.xml")], capsys)  # fmt: skip
+    assert "error: --world:" in err and "timestep 1e-300 s does not divide" in err
+    assert not out.exists()  # before the export
 
 
 def test_the_readme_deploy_snippet_walks_a_simulated_robot(exports):

@@ -49,7 +49,7 @@ def test_train_writes_checkpoints_logs_config_and_exports(trained):
     assert load_checkpoint(trained / "model_1.pt")["iter"] == 1
     assert list(trained.glob("events.out.tfevents.*"))
     config = json.loads((trained / "config.json").read_text())
-    assert config["args"]["num_envs"] == 16 and config["env"]["settle_pool"] == 8
+    assert config["num_envs"] == 16 and config["env"]["settle_pool"] == 8
     assert (trained / "exported" / "policy.pt").is_file()
     assert (trained / "exported" / "policy.onnx").is_file()
 
@@ -145,7 +145,7 @@ def test_train_torchrl_runs_two_iterations(tmp_path, task, actions):
     assert saved["actor"]["module.0.module.0.0.weight"].shape[0] == 16
     weights = [v for k, v in saved["actor"].items() if k.endswith("weight")]
     assert weights[-1].shape[0] == 2 * actions  # loc and scale of each action
-    assert json.loads((tmp_path / "config.json").read_text())["args"]["max_iterations"] == 2
+    assert json.loads((tmp_path / "config.json").read_text())["run"]["max_iterations"] == 2
     assert saved["groups"]["critic"][-2:] == ["physics", "heights"]  # the robust world's
 
 
@@ -185,6 +185,59 @@ def test_plot_training_overlays_runs_by_iteration(trained, tmp_path):
 def test_walk_demo_prints_the_speed():
     out = run("rwalk.runners.walk_demo", "--envs", "2", "--seconds", "1")
     assert "forward speed" in out and "expected 0.1333" in out
+
+
+def test_the_walk_demo_console_script_exits_0():
+    # console scripts run sys.exit(main()): a returned summary would exit with status 1
+    done = subprocess.run(
+        [sys.executable, "-c", "import sys; from rwalk.runners.walk_demo import main; "
+         "sys.exit(main())", "--envs", "1", "--seconds", "0.1"],
+        cwd=ROOT, capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "forward speed" in done.stdout
+
+
+#: The runners whose command lines come from their ``Args`` dataclass (beside train and play).
+RUNNERS = ("sim2sim", "robustness", "base_gait_report", "fidelity", "adaptive_report",
+           "single_bench", "walk_demo", "bench", "plot_training")  # fmt: skip
+
+
+@pytest.mark.parametrize("name", RUNNERS)
+def test_every_runner_flag_has_help_and_its_default(name, monkeypatch, capsys):
+    import dataclasses
+    import importlib
+    import typing
+
+    from rwalk.validation import flag
+
+    module = importlib.import_module(f"rwalk.runners.{name}")
+    args = typing.get_type_hints(module.parse_args)["return"]
+    monkeypatch.setenv("COLUMNS", "90")
+    with pytest.raises(SystemExit) as exit_:
+        module.parse_args(["--help"])
+    assert exit_.value.code == 0
+    text = capsys.readouterr().out
+    assert text.startswith(f"usage: python -m rwalk.runners.{name} [-h] ")  # the command
+    assert module.__doc__.splitlines()[0] in text  # the description
+    entries: dict[str, str] = {}
+    entry = None
+    for line in text.split("options", 1)[1].splitlines():
+        line = line.strip("│ ").strip()
+        if line.startswith("--"):
+            entry, _, rest = line.partition(" ")
+            entry = entry.rstrip(",")
+            entries[entry] = rest
+        elif entry and line and not line.startswith(("╰", "╭", "─")):
+            entries[entry] += " " + line
+    hints = typing.get_type_hints(args, include_extras=True)
+    for field in dataclasses.fields(args):
+        if "Positional" in repr(hints[field.name]):
+            assert f" {field.name.upper()}" in text.splitlines()[0], field.name  # usage line
+            continue
+        entry = " ".join(entries[flag(field.name)].split())
+        assert "(default: " in entry or "(repeatable)" in entry, (field.name, entry)
+        assert len(entry.split("(default:")[0].split()) > 1, (field.name, entry)  # a help text
 
 
 def test_plot_training_puts_runs_at_their_measured_paces(trained, tmp_path, monkeypatch, capsys):

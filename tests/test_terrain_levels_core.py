@@ -199,6 +199,43 @@ def test_robustness_runs_paired_episodes_and_writes_its_rows(tmp_path, capsys):
     assert "| new maps | base gait |" in capsys.readouterr().out
 
 
+def test_robustness_refuses_outputs_it_could_not_write_before_any_row(
+    tmp_path, monkeypatch, capsys
+):
+    def never(*args, **kwargs):
+        raise AssertionError("a row ran before the refusal")
+
+    monkeypatch.setattr(robustness_runner, "run_condition", never)
+    file = tmp_path / "file"
+    file.write_text("x")
+    for flag, path, why in (("--json", file / "r.json", "is not a folder"),
+                            ("--json", tmp_path, "is a folder"),
+                            ("--plot", file / "r.png", "is not a folder")):  # fmt: skip
+        with pytest.raises(SystemExit) as exit_:
+            robustness_runner.main(["--episodes", "2", "--conditions", "pushes", flag, str(path)])
+        err = capsys.readouterr().err.strip()
+        assert exit_.value.code == 2 and "\n" not in err
+        assert f"error: {flag} " in err and why in err
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--conditions", "moon"], "--conditions must be some of 'nominal', 'new maps'"),
+        (["--conditions"], "--conditions needs at least one of 'nominal'"),
+        (["--episodes", "0"], "--episodes must be >= 1, got 0"),
+        (["--map-level", "99"], "--map-level: level 99 is a terrain level outside the map"),
+        (["--checkpoint", "a=nope.pt"], "--checkpoint a: checkpoint 'nope.pt' not found"),
+        (["--checkpoint", "x/m.pt", "--checkpoint", "x=y/m.pt"], "two checkpoints are labelled"),
+    ],
+)
+def test_robustness_names_a_bad_flag_in_one_line(flags, message, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        robustness_runner.parse_args(flags)
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and "\n" not in err and message in err
+
+
 def test_envs_passing_the_top_restart_at_a_drawn_level():
     top = TerrainLevels(**{**vars(SMALL), "start_level": 3})
     c = Core(config(terrain_levels=top), 64, seed=3)

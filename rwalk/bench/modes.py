@@ -77,13 +77,15 @@ substep counts, settling included.
 """
 
 
-def measure_env(n: int, threads: int, window: float, task: str = "residual_walk") -> dict:
-    """(b) (or (g), the adaptive task) and its floor (a) on the same robots, timed in
-    alternating rounds."""
+def measure_env(
+    n: int, threads: int, window: float, task: str = "residual_walk", mode: str = "b"
+) -> dict:
+    """``mode`` ((b); (g): the adaptive task's) and its floor (a) on the same robots, timed
+    in alternating rounds."""
     gen = torch.Generator().manual_seed(0)
     env, step, first_reset = env_stepper(n, threads, gen, task=task)
     b, a = against_floor(env.core, step, threads, gen, window)
-    return {"b" if task == "residual_walk" else "g": b | first_reset, "a": a}
+    return {mode: b | first_reset, "a": a}
 
 
 def measure_scaling(n: int, threads: int, window: float) -> dict:
@@ -270,7 +272,7 @@ def measure_envpool(terrain: str):
 #: The measure function of each worker mode: (n, threads, window) -> {mode: row}.
 MEASURES = {
     "b": measure_env,
-    "g": lambda n, threads, window: measure_env(n, threads, window, task="adaptive_gait"),
+    "g": lambda n, threads, window: measure_env(n, threads, window, "adaptive_gait", "g"),
     "c": measure_rsl_rl,
     "d": measure_gym,
     "t": measure_scaling,

@@ -20,13 +20,15 @@ row) and adaptive_levels.png, and prints the tables.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
+from rwalk import presets
 from rwalk.adaptive_evaluation import (
     ADAPTATION_FLOOR,
+    GAIT_STEPS,
     GaitStats,
     adaptation,
     compare,
@@ -35,13 +37,53 @@ from rwalk.adaptive_evaluation import (
     plot_levels,
     table,
 )
-from rwalk.cli import NATURAL_INT, POSITIVE_INT, UNIT_FLOAT, command, one_line_errors
-from rwalk.config import MAX_SETTLE_STEPS
+from rwalk.cli import command, one_line_errors, parse, usage_error
+from rwalk.config import MAX_ENVS, MAX_SETTLE_STEPS, MAX_STEPS
 from rwalk.evaluation import Evaluation, check_policy, read_results
-from rwalk.rl.checkpoints import atomic_write_text
+from rwalk.rl.checkpoints import atomic_write_text, check_writable
+from rwalk.validation import require_at_least, require_at_most, require_in
 
 #: Most steps of an episode here (10^5: 33 minutes of walking).
-MAX_STEPS = 100_000
+MAX_REPORT_STEPS = 100_000
+#: The files the report writes into --out.
+FILES = ("adaptive.json", "adaptive_levels.png")
+PROG = command("rwalk.runners.adaptive_report")
+"""The command in usage lines and error messages."""
+
+
+@dataclass(frozen=True)
+class AdaptiveReportArgs:
+    """rwalk-adaptive-report's command line (each field a flag)."""
+
+    residual: Path | None = None
+    """residual checkpoint"""
+    adaptive: Path | None = None
+    """adaptive checkpoint"""
+    episodes: int = 100
+    """paired episodes per row"""
+    seed: int = 1000
+    """first episode's seed"""
+    terrain_scale: float = 1.0
+    """the nominal rough world"""
+    max_steps: int = presets.EVALUATION.max_episode_steps
+    """episode length of (a)-(c)"""
+    settle_steps: int = presets.EVALUATION.settle_steps
+    """settling before each episode"""
+    gait_steps: int = GAIT_STEPS
+    """steps of each gait episode"""
+    out: Path = Path("docs")
+    """output folder"""
+    tables: Path | None = None
+    """only print the tables of an adaptive.json"""
+
+    def __post_init__(self) -> None:
+        require_at_least(self, 1, "episodes", "max_steps", "gait_steps")
+        require_at_least(self, 0, "seed", "settle_steps")
+        require_at_most(self, MAX_ENVS, "episodes")
+        require_at_most(self, MAX_STEPS, "seed")
+        require_at_most(self, MAX_REPORT_STEPS, "gait_steps", "max_steps")
+        require_at_most(self, MAX_SETTLE_STEPS, "settle_steps")
+        require_in(self, "terrain_scale", 0.0, 1.0)
 
 
 def _print(tables: dict[str, list[Evaluation]], stats: list[GaitStats]) -> None:
@@ -73,45 +115,39 @@ def _read(path: Path) -> tuple[dict[str, list[Evaluation]], list[GaitStats]]:
     return tables, stats
 
 
-@one_line_errors("rwalk.runners.adaptive_report")
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        prog=command("rwalk.runners.adaptive_report"), description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )  # fmt: skip
-    add = parser.add_argument
-    add("--residual", type=Path, help="residual checkpoint")
-    add("--adaptive", type=Path, help="adaptive checkpoint")
-    add("--episodes", type=POSITIVE_INT, default=100, help="paired episodes per row")
-    add("--seed", type=NATURAL_INT, default=1000, help="first episode's seed")
-    add("--terrain-scale", type=UNIT_FLOAT, default=1.0, help="the nominal rough world")
-    add("--max-steps", type=POSITIVE_INT, default=1000, help="episode length of (a)-(c)")
-    add("--settle-steps", type=NATURAL_INT, default=500, help="settling before each episode")
-    add("--gait-steps", type=POSITIVE_INT, default=500, help="steps of each gait episode")
-    add("--out", type=Path, default=Path("docs"), help="output folder")
-    add("--tables", type=Path, help="only print the tables of an adaptive.json")
-    args = parser.parse_args(argv)
+def parse_args(argv: list[str] | None = None) -> AdaptiveReportArgs:
+    """``argv`` as rwalk-adaptive-report's arguments, every file checked before any row
+    runs. Exits 2 with one line naming a bad flag or file."""
+    args = parse(AdaptiveReportArgs, argv, prog=PROG, description=__doc__)
     if args.tables:
-        try:
-            tables, stats = _read(args.tables)
-        except (OSError, ValueError, KeyError, TypeError) as error:
-            parser.error(f"--tables: not an adaptive.json of this report ({error})")
-        _print(tables, stats)
-        return
+        return args
     if args.residual is None or args.adaptive is None:
-        parser.error("give --residual and --adaptive checkpoints (or --tables)")
-    for name in ("gait_steps", "max_steps"):
-        if not getattr(args, name) <= MAX_STEPS:
-            parser.error(f"--{name.replace('_', '-')} must be at most {MAX_STEPS}, got "
-                         f"{getattr(args, name)}")  # fmt: skip
-    if not args.settle_steps <= MAX_SETTLE_STEPS:
-        parser.error(f"--settle-steps must be at most {MAX_SETTLE_STEPS}, got {args.settle_steps}")
+        usage_error(PROG, "give --residual and --adaptive checkpoints (or --tables)")
+    try:  # before any row runs
+        for name in FILES:
+            check_writable(args.out / name, "--out")
+    except ValueError as error:
+        usage_error(PROG, str(error))
     for flag, path, task in (("--residual", args.residual, "residual_walk"),
                              ("--adaptive", args.adaptive, "adaptive_gait")):  # fmt: skip
         try:  # every file, before any row runs
             check_policy(path, task)
         except (OSError, ValueError) as error:
-            parser.error(f"{flag}: {error}")
+            usage_error(PROG, f"{flag}: {error}")
+    return args
+
+
+@one_line_errors("rwalk.runners.adaptive_report")
+def main(argv: list[str] | None = None) -> None:
+    """Console script ``rwalk-adaptive-report`` (returns None: its exit status is 0)."""
+    args = parse_args(argv)
+    if args.tables:
+        try:
+            tables, stats = _read(args.tables)
+        except (OSError, ValueError, KeyError, TypeError) as error:
+            usage_error(PROG, f"--tables: not an adaptive.json of this report ({error})")
+        _print(tables, stats)
+        return
     policies = {"base gait": None, "residual": args.residual, "adaptive": args.adaptive}
     tables = compare(policies, args.episodes, args.seed, args.terrain_scale,
                      max_steps=args.max_steps, settle_steps=args.settle_steps)  # fmt: skip
@@ -121,9 +157,11 @@ def main(argv: list[str] | None = None) -> None:
     data = {k: [dataclasses.asdict(r) for r in rows] for k, rows in tables.items()}
     data["gait"] = [dataclasses.asdict(s) for s in stats]
     data["adaptation"] = adaptation(stats)
-    atomic_write_text(args.out / "adaptive.json", json.dumps(data, indent=2))
-    plot_levels(stats, args.out / "adaptive_levels.png")
+    atomic_write_text(args.out / FILES[0], json.dumps(data, indent=2))
+    plot_levels(stats, args.out / FILES[1])
 
 
-if __name__ == "__main__":
-    main()
+if __name__ == "__main__":  # through the module by name, where tyro reads the Args' types
+    from rwalk.runners.adaptive_report import main as report_main
+
+    report_main()

@@ -9,7 +9,7 @@ rough ground), and prints the table of docs/base_gait.md.
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,17 +24,43 @@ from rwalk.base_gait import (
     plot_paths,
     table_row,
 )
-from rwalk.cli import POSITIVE_INT, SECONDS, one_line_errors
+from rwalk.cli import command, one_line_errors, parse
+from rwalk.config import MAX_ENVS
+from rwalk.validation import require_at_least, require_at_most, require_positive
+
+#: Longest simulated time a report walks (a day). Seconds.
+MAX_SECONDS = 86_400.0
+
+
+@dataclass(frozen=True)
+class BaseGaitReportArgs:
+    """rwalk-base-gait-report's command line (each field a flag)."""
+
+    out: Path = Path("docs")
+    """folder of the figures"""
+    envs: int = 64
+    """robots walked at once"""
+    seconds: float = 20.0
+    """simulated time"""
+
+    def __post_init__(self) -> None:
+        require_at_least(self, 1, "envs")
+        require_at_most(self, MAX_ENVS, "envs")
+        require_positive(self, "seconds")
+        require_at_most(self, MAX_SECONDS, "seconds")
+
+
+def parse_args(argv: list[str] | None = None) -> BaseGaitReportArgs:
+    """``argv`` as rwalk-base-gait-report's arguments; exits 2 with one line naming a bad
+    flag."""
+    prog = command("rwalk.runners.base_gait_report")
+    return parse(BaseGaitReportArgs, argv, prog=prog, description=__doc__)
 
 
 @one_line_errors("rwalk.runners.base_gait_report")
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("docs"))
-    parser.add_argument("--envs", type=POSITIVE_INT, default=64, help="robots walked at once")
-    parser.add_argument("--seconds", type=SECONDS, default=20.0, help="simulated time")
-    args = parser.parse_args(argv)
-
+    """Console script ``rwalk-base-gait-report``."""
+    args = parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     track = foot_track()
     plot_foot_track(track, args.out / "base_gait_foot.png")
@@ -50,5 +76,7 @@ def main(argv: list[str] | None = None) -> None:
     plot_paths(walked, args.seconds, args.out / "base_gait_paths.png")
 
 
-if __name__ == "__main__":
-    main()
+if __name__ == "__main__":  # through the module by name, where tyro reads the Args' types
+    from rwalk.runners.base_gait_report import main as report_main
+
+    report_main()

@@ -18,29 +18,38 @@ this command plans the runs, starts one worker process per run and reports.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
+
+import tyro
 
 from rwalk.bench.envpool import envpool_missing
 from rwalk.bench.modes import MODES_HELP, ONLY_MODES, WorkerFailed, run_worker, worker_runs
 from rwalk.bench.report import LABELS, add_ratios_to_floor, plot, summary, table, worker_line
-from rwalk.cli import one_line_errors
+from rwalk.cli import command, one_line_errors, parse, usage_error
 from rwalk.config import MAX_ENVS, MAX_THREADS
-from rwalk.rl.checkpoints import atomic_write_text
+from rwalk.rl.checkpoints import atomic_write_text, check_writable
 
 SIZES = (1, 16, 256, 1024, 4096, 8192)
 QUICK_SIZES = (16, 1024)
 GYM_SYNC_SIZES = (1, 16)
 ENVPOOL_N = 256
+#: Longest timing window. Seconds.
+MAX_WINDOW = 3600.0
 
 
 def parse_only(text: str) -> tuple[str, int, int]:
-    """argparse type of --only: ``mode,N,threads`` -> (mode, N, threads)."""
+    """One --only: ``mode,N,threads`` -> (mode, N, threads).
+
+    Raises:
+        ValueError: naming the flag, what it takes and ``text``.
+    """
     wanted = (
         f"'mode,N,threads' with mode in {', '.join(ONLY_MODES)}, N >= 1 and threads >= 1 "
         f"(>= 2 for t), e.g. b,1024,2"
@@ -49,24 +58,43 @@ def parse_only(text: str) -> tuple[str, int, int]:
     try:
         mode, n, threads = parts[0].strip(), int(parts[1]), int(parts[2])
     except (IndexError, ValueError):
-        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+        raise ValueError(f"--only must be {wanted}, got {text!r}") from None
     bad = n < 1 or n > MAX_ENVS or threads < (2 if mode == "t" else 1) or threads > MAX_THREADS
     if len(parts) != 3 or mode not in ONLY_MODES or bad:
-        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}")
+        raise ValueError(f"--only must be {wanted}, got {text!r}")
     return mode, n, threads
 
 
-def positive_seconds(text: str) -> float:
-    """argparse type of --seconds: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, got {text!r}")
-    if value > 3600:
-        raise argparse.ArgumentTypeError(f"expected at most 3600 seconds, got {text!r}")
-    return value
+@dataclass(frozen=True)
+class BenchArgs:
+    """rwalk-bench's command line (each field a flag)."""
+
+    quick: bool = False
+    """N in {16, 1024}, 2 s windows"""
+    seconds: float | None = None
+    """timing window per measurement (None: 2 with --quick, else 8)"""
+    json: Path | None = None
+    """save the results here"""
+    plot: Path | None = None
+    """save a throughput-vs-N PNG here"""
+    only: Annotated[tuple[str, ...], tyro.conf.UseAppendAction] = ()
+    """measure only 'mode,N,threads' (repeatable, e.g. b,1024,2; a comes with b)"""
+
+    def __post_init__(self) -> None:
+        seconds = self.seconds
+        if seconds is not None and not (math.isfinite(seconds) and 0 < seconds <= MAX_WINDOW):
+            raise ValueError(f"--seconds must be a number of seconds > 0 and at most "
+                             f"{MAX_WINDOW:g}, got {seconds}")  # fmt: skip
+        self.runs()  # each --only parses
+
+    def runs(self) -> list[tuple[str, int, int]]:
+        """The --only runs as (mode, N, threads)."""
+        return [parse_only(text) for text in self.only]
+
+    @property
+    def window(self) -> float:
+        """The timing window of each measurement. Seconds."""
+        return self.seconds or (2.0 if self.quick else 8.0)
 
 
 def plan(quick: bool) -> list[tuple[str, int, int]]:
@@ -86,26 +114,17 @@ def plan(quick: bool) -> list[tuple[str, int, int]]:
     return worker_runs(runs)
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        description=f"{__doc__}\n{MODES_HELP}",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    parser.add_argument("--quick", action="store_true", help="N in {16, 1024}, 2 s windows")
-    parser.add_argument(
-        "--seconds",
-        type=positive_seconds,
-        help="timing window per measurement (default: 2 with --quick, else 8)",
-    )
-    parser.add_argument("--json", type=Path, help="save the results here")
-    parser.add_argument("--plot", type=Path, help="save a throughput-vs-N PNG here")
-    parser.add_argument(
-        "--only",
-        action="append",
-        type=parse_only,
-        help="measure only 'mode,N,threads' (repeatable, e.g. b,1024,2; a comes with b)",
-    )
-    return parser.parse_args(argv)
+def parse_args(argv: list[str] | None = None) -> BenchArgs:
+    """``argv`` as rwalk-bench's arguments; exits 2 with one line naming a bad flag."""
+    prog = command("rwalk.runners.bench")
+    args = parse(BenchArgs, argv, prog=prog, description=f"{__doc__}\n{MODES_HELP}")
+    for flag, path in (("--json", args.json), ("--plot", args.plot)):
+        try:  # before the sweep
+            if path is not None:
+                check_writable(path, flag)
+        except ValueError as error:
+            usage_error(prog, str(error))
+    return args
 
 
 def bench(argv: list[str] | None = None) -> list[dict]:
@@ -114,10 +133,10 @@ def bench(argv: list[str] | None = None) -> list[dict]:
     return _sweep(parse_args(argv))[0]
 
 
-def _sweep(args: argparse.Namespace) -> tuple[list[dict], int]:
+def _sweep(args: BenchArgs) -> tuple[list[dict], int]:
     """Run, report and save the sweep of ``args``; (result rows, failed runs)."""
-    window = args.seconds or (2.0 if args.quick else 8.0)
-    runs = worker_runs(args.only) if args.only else plan(args.quick)
+    window = args.window
+    runs = worker_runs(args.runs()) if args.only else plan(args.quick)
     results, failed = [], 0
     started = time.perf_counter()
     for i, (mode, n, threads) in enumerate(runs, 1):
@@ -158,5 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     return 1 if failed and not results else 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # through the module by name, where tyro reads BenchArgs's types
+    from rwalk.runners.bench import main as bench_main
+
+    sys.exit(bench_main())

@@ -24,11 +24,12 @@ on the rough world, every candidate timed in alternating rounds in one process.
 
 from __future__ import annotations
 
-import argparse
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
-from rwalk.cli import POSITIVE_FLOAT, POSITIVE_INT, SECONDS, command, one_line_errors
+from rwalk.cli import command, one_line_errors, parse, usage_error
+from rwalk.config import MAX_ENVS, MAX_STEPS
 from rwalk.fidelity import (
     CANDIDATES,
     CONTROL_DT,
@@ -38,69 +39,100 @@ from rwalk.fidelity import (
     run_cases,
     table,
 )
+from rwalk.rl.checkpoints import atomic_write_text, check_writable
+from rwalk.validation import require_at_least, require_at_most, require_positive
 
 PROG = command("rwalk.runners.fidelity")
+#: Longest simulated time of a run, and longest timing turn. Seconds.
+MAX_SECONDS = 86_400.0
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--robots", type=POSITIVE_INT, default=256, help="robots per run")
-    parser.add_argument("--seconds", type=SECONDS, default=20.0, help="simulated time")
-    parser.add_argument(
-        "--only", type=_names, default=list(CANDIDATES), help="comma-separated candidates"
-    )
-    parser.add_argument("--worlds", type=_worlds, default=list(WORLDS), help="flat,rough")
-    parser.add_argument("--checkpoint", type=Path, help="also run this policy's closed loop")
-    parser.add_argument(
-        "--policy-only", action="store_true", help="with --checkpoint: skip the base gait"
-    )
-    parser.add_argument("--cost-envs", type=POSITIVE_INT, default=256, help="envs in cost timing")
-    parser.add_argument("--cost-rounds", type=POSITIVE_INT, default=3, help="alternating rounds")
-    parser.add_argument("--cost-window", type=POSITIVE_FLOAT, default=1.0, help="seconds a turn")
-    parser.add_argument("--json", type=Path, help="save the results here")
-    parser.add_argument("--plot", type=Path, help="save the cost-vs-fidelity PNG here")
-    args = parser.parse_args(argv)
-    if "reference" not in args.only:
-        args.only = ["reference", *args.only]
+def _names(text: str) -> tuple[str, ...]:
+    """The comma-separated names of ``text`` (empty ones left out)."""
+    return tuple(name for name in text.split(",") if name)
+
+
+@dataclass(frozen=True)
+class FidelityArgs:
+    """rwalk-fidelity's command line (each field a flag)."""
+
+    robots: int = 256
+    """robots per run"""
+    seconds: float = 20.0
+    """simulated time"""
+    only: str = ",".join(CANDIDATES)
+    """comma-separated candidates (the reference always runs)"""
+    worlds: str = ",".join(WORLDS)
+    """comma-separated worlds"""
+    checkpoint: Path | None = None
+    """also run this policy's closed loop"""
+    policy_only: bool = False
+    """with --checkpoint: skip the base gait"""
+    cost_envs: int = 256
+    """envs in cost timing"""
+    cost_rounds: int = 3
+    """alternating rounds"""
+    cost_window: float = 1.0
+    """seconds a turn"""
+    json: Path | None = None
+    """save the results here"""
+    plot: Path | None = None
+    """save the cost-vs-fidelity PNG here"""
+
+    def __post_init__(self) -> None:
+        require_at_least(self, 1, "robots", "cost_envs", "cost_rounds")
+        require_at_most(self, MAX_ENVS, "robots", "cost_envs")
+        require_at_most(self, MAX_STEPS, "cost_rounds")
+        require_positive(self, "seconds", "cost_window")
+        require_at_most(self, MAX_SECONDS, "seconds", "cost_window")
+        unknown = [name for name in _names(self.only) if name not in CANDIDATES]
+        if unknown or not _names(self.only):
+            raise ValueError(f"--only: unknown candidate(s) {unknown or self.only!r}; known: "
+                             f"{', '.join(CANDIDATES)}")  # fmt: skip
+        if not _names(self.worlds) or any(name not in WORLDS for name in _names(self.worlds)):
+            raise ValueError(f"--worlds must be some of {', '.join(WORLDS)}, comma-separated, "
+                             f"got {self.worlds!r}")  # fmt: skip
+
+    @property
+    def candidates(self) -> list[str]:
+        """The candidates of --only, the reference first if --only leaves it out."""
+        names = list(_names(self.only))
+        return names if "reference" in names else ["reference", *names]
+
+    @property
+    def world_names(self) -> list[str]:
+        """The worlds of --worlds."""
+        return list(_names(self.worlds))
+
+
+def parse_args(argv: list[str] | None = None) -> FidelityArgs:
+    """``argv`` as rwalk-fidelity's arguments; exits 2 with one line naming a bad flag or
+    file."""
+    args = parse(FidelityArgs, argv, prog=PROG, description=__doc__)
     if args.checkpoint is not None and not args.checkpoint.is_file():
-        parser.error(f"--checkpoint {str(args.checkpoint)!r} is not a file")
+        usage_error(PROG, f"--checkpoint {str(args.checkpoint)!r} is not a file")
     if args.policy_only and args.checkpoint is None:
-        parser.error("--policy-only needs --checkpoint")
+        usage_error(PROG, "--policy-only needs --checkpoint")
+    for flag, path in (("--json", args.json), ("--plot", args.plot)):
+        try:  # before any run
+            if path is not None:
+                check_writable(path, flag)
+        except ValueError as error:
+            usage_error(PROG, str(error))
     return args
-
-
-def _names(text: str) -> list[str]:
-    names = [name for name in text.split(",") if name]
-    unknown = [name for name in names if name not in CANDIDATES]
-    if unknown or not names:
-        raise argparse.ArgumentTypeError(
-            f"unknown candidate(s) {unknown or text!r}; known: {', '.join(CANDIDATES)}"
-        )
-    return names
-
-
-def _worlds(text: str) -> list[str]:
-    names = [name for name in text.split(",") if name]
-    if not names or any(name not in WORLDS for name in names):
-        raise argparse.ArgumentTypeError(f"worlds are {', '.join(WORLDS)}, got {text!r}")
-    return names
 
 
 def fidelity(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
     steps = max(1, round(args.seconds / CONTROL_DT))
     cases = run_cases(
-        args.only, args.worlds, args.robots, steps, args.checkpoint, args.policy_only,
-        log=lambda line: print(line, flush=True),
+        args.candidates, args.world_names, args.robots, steps, args.checkpoint,
+        args.policy_only, log=lambda line: print(line, flush=True),
     )  # fmt: skip
-    costs = measure_costs(args.only, args.cost_envs, args.cost_rounds, args.cost_window)
+    costs = measure_costs(args.candidates, args.cost_envs, args.cost_rounds, args.cost_window)
     results = {"robots": args.robots, "seconds": steps * CONTROL_DT, "cases": cases, "cost": costs}
     print(table(results))
     if args.json is not None:
-        from rwalk.rl.checkpoints import atomic_write_text
-
         atomic_write_text(args.json, json.dumps(results, indent=1))
     if args.plot is not None:
         plot(results, args.plot)
@@ -112,5 +144,7 @@ def main(argv: list[str] | None = None) -> None:
     fidelity(argv)
 
 
-if __name__ == "__main__":
-    main()
+if __name__ == "__main__":  # through the module by name, where tyro reads FidelityArgs's types
+    from rwalk.runners.fidelity import main as fidelity_main
+
+    fidelity_main()

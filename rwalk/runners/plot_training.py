@@ -12,39 +12,60 @@ dashed lines when given.
 
 from __future__ import annotations
 
-import argparse
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
+
+import tyro
 
 from rwalk import learning_curves
-from rwalk.cli import one_line_errors
+from rwalk.cli import command, one_line_errors, parse, usage_error
 from rwalk.tensorboard_events import read_scalars
+
+#: Longest pace of an iteration. Seconds.
+MAX_PACE = 1e6
+
+
+@dataclass(frozen=True)
+class PlotTrainingArgs:
+    """rwalk-plot-training's command line (each field a flag; the run folders come first)."""
+
+    log_dir: Annotated[tuple[Path, ...], tyro.conf.Positional, tyro.conf.arg(metavar="LOG_DIR")]
+    """run folders (overlaid)"""
+    by_iteration: bool = False
+    """x axis: PPO iteration, not minutes"""
+    paces: tuple[float, ...] | None = None
+    """seconds per iteration of each run, measured alone, one per LOG_DIR: x = iteration x pace"""
+    title: str | None = None
+    """the figure's title"""
+    out: Path = Path("docs/learning_curve.png")
+    """the figure (PNG)"""
+    base_gait_json: Path | None = None
+    """rwalk-play --json output: the base gait's levels as dashed lines"""
+
+    def __post_init__(self) -> None:
+        if not self.log_dir:
+            raise ValueError("LOG_DIR: give at least one run folder")
+
+
+def parse_args(argv: list[str] | None = None) -> PlotTrainingArgs:
+    """``argv`` as rwalk-plot-training's arguments; exits 2 with one line naming a bad flag."""
+    prog = command("rwalk.runners.plot_training")
+    args = parse(PlotTrainingArgs, argv, prog=prog, description=__doc__)
+    paces = args.paces
+    if paces is not None and (
+        len(paces) != len(args.log_dir) or not all(0 < p < MAX_PACE for p in paces)
+    ):
+        usage_error(prog, f"--paces needs one number of seconds > 0 per run folder "
+                          f"({len(args.log_dir)}), got {list(paces)}")  # fmt: skip
+    return args
 
 
 @one_line_errors("rwalk.runners.plot_training")
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("log_dir", type=Path, nargs="+", help="run folders (overlaid)")
-    parser.add_argument(
-        "--by-iteration", action="store_true", help="x axis: PPO iteration (default: minutes)"
-    )
-    parser.add_argument(
-        "--paces", type=float, nargs="+", metavar="SECONDS",
-        help="seconds per iteration of each run, measured alone (one per log_dir): x axis = "
-        "iteration x pace, for runs that shared the cores",
-    )  # fmt: skip
-    parser.add_argument("--title", help="the figure's title")
-    parser.add_argument("--out", type=Path, default=Path("docs/learning_curve.png"))
-    parser.add_argument("--base-gait-json", type=Path, help="play.py --json output")
-    args = parser.parse_args(argv)
-
-    if args.paces is not None and (
-        len(args.paces) != len(args.log_dir) or not all(0 < p < 1e6 for p in args.paces)
-    ):
-        parser.error(f"--paces needs one number of seconds > 0 per run folder "
-                     f"({len(args.log_dir)}), got {args.paces}")  # fmt: skip
+    """Console script ``rwalk-plot-training`` (returns None: its exit status is 0)."""
+    args = parse_args(argv)
     runs = {str(log_dir): read_scalars(log_dir) for log_dir in args.log_dir}
     paces = None if args.paces is None else dict(zip(runs, args.paces, strict=True))
     base = None
@@ -56,5 +77,7 @@ def main(argv: list[str] | None = None) -> None:
     print(f"wrote {args.out}")
 
 
-if __name__ == "__main__":
-    main()
+if __name__ == "__main__":  # through the module by name, where tyro reads the Args' types
+    from rwalk.runners.plot_training import main as plot_main
+
+    plot_main()

@@ -9,59 +9,116 @@ the same models and starts, compared bit for bit (``rwalk.sim2sim.closed_loop``)
 the gap of the checkpoint's torch policy to its ONNX file on the same inputs;
 (2) the runtime alone on each --world XML, under the env's physics and the
 fidelity harness's reference physics (0.5 ms, tight solver; each target held
-over the finer substeps): falls and velocity error, with the reference's noise
-band (``rwalk.fidelity.BAND`` standard errors). Prints the tables, writes --json.
+over the finer substeps), each start settled first as the evaluation's are (its
+settle steps of the base gait): falls and velocity error, with the reference's
+noise band (``rwalk.fidelity.BAND`` standard errors). Prints the tables, writes --json.
+A teacher (its actor reads privileged pieces) is refused: only a policy that reads
+what the robot senses deploys.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
-from rwalk.cli import NATURAL_INT, POSITIVE_INT, command, one_line_errors
-from rwalk.rl.checkpoints import atomic_write_text
+import tyro
+
+from rwalk import presets
+from rwalk.cli import command, one_line_errors, parse, usage_error
+from rwalk.config import MAX_ENVS, MAX_STEPS
+from rwalk.rl.checkpoints import atomic_write_text, check_writable
+from rwalk.validation import require_at_least, require_at_most
 
 #: The worlds the runtime walks alone by default (the base-gait check's).
 WORLDS = ("model/world_flat.xml", "model/world_train.xml")
+PROG = command("rwalk.runners.sim2sim")
+"""The command in usage lines and error messages."""
+
+
+@dataclass(frozen=True)
+class Sim2SimArgs:
+    """rwalk-sim2sim's command line (each field a flag; the checkpoint comes first)."""
+
+    checkpoint: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="CHECKPOINT")]
+    """an rwalk-train checkpoint (either task; not a teacher)"""
+    out: Path = Path("sim2sim")
+    """folder of the export (OUT/exported)"""
+    episodes: int = 10
+    """closed-loop episodes"""
+    steps: int = presets.EVALUATION.max_episode_steps
+    """control periods per episode"""
+    seed: int = 1000
+    """first episode's seed"""
+    world: tuple[Path, ...] = tuple(Path(world) for world in WORLDS)
+    """worlds the runtime walks alone (none: skip)"""
+    walk_episodes: int = 20
+    """episodes per world and physics"""
+    latency: int = 0
+    """also time this many control steps of the runtime, one thread (a benchmark: run alone)"""
+    json: Path | None = None
+    """write the results here"""
+
+    def __post_init__(self) -> None:
+        require_at_least(self, 1, "episodes", "steps", "walk_episodes")
+        require_at_least(self, 0, "seed", "latency")
+        require_at_most(self, MAX_ENVS, "episodes")
+        require_at_most(self, MAX_STEPS, "steps", "seed", "walk_episodes", "latency")
+
+
+def parse_args(argv: list[str] | None = None) -> Sim2SimArgs:
+    """``argv`` as rwalk-sim2sim's arguments, every file checked before any work. Exits 2
+    with one line naming a bad flag, a world or output that cannot be used, or a
+    checkpoint that does not deploy."""
+    from rwalk.deploy import DEPLOYABLE, TASKS
+    from rwalk.evaluation import check_policy
+
+    args = parse(Sim2SimArgs, argv, prog=PROG, description=__doc__)
+    for world in args.world:
+        if not world.is_file():
+            usage_error(PROG, f"--world: {str(world)!r} not found")
+    for flag, path in (("--out", args.out / "exported" / "policy.json"), ("--json", args.json)):
+        try:  # before any work
+            if path is not None:
+                check_writable(path, flag)
+        except ValueError as error:
+            usage_error(PROG, str(error))
+    try:
+        record = check_policy(args.checkpoint)
+    except (OSError, ValueError) as error:
+        usage_error(PROG, f"CHECKPOINT: {error}")
+    if record.task not in TASKS:
+        usage_error(PROG, f"CHECKPOINT: a {record.task!r} policy; the runtime runs policies "
+                          f"of {', '.join(TASKS)}")  # fmt: skip
+    privileged = [piece for piece in record.train.policy_obs if piece not in DEPLOYABLE]
+    if privileged:
+        usage_error(PROG, f"CHECKPOINT: {str(args.checkpoint)!r} is a teacher: its policy "
+                          f"reads {tuple(privileged)} (privileged: only the simulator knows "
+                          f"them); deploy a student (rwalk-train --distill) that reads "
+                          f"{DEPLOYABLE}")  # fmt: skip
+    return args
 
 
 @one_line_errors("rwalk.runners.sim2sim")
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        prog=command("rwalk.runners.sim2sim"), description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )  # fmt: skip
-    add = parser.add_argument
-    add("checkpoint", type=Path, help="an rwalk-train checkpoint (either task; not a teacher)")
-    add("--out", type=Path, default=Path("sim2sim"), help="folder of the export (OUT/exported)")
-    add("--episodes", type=POSITIVE_INT, default=10, help="closed-loop episodes")
-    add("--steps", type=POSITIVE_INT, default=1000, help="control periods per episode")
-    add("--seed", type=NATURAL_INT, default=1000, help="first episode's seed")
-    add("--world", nargs="*", default=list(WORLDS), metavar="XML",
-        help="worlds the runtime walks alone (none: skip)")  # fmt: skip
-    add("--walk-episodes", type=POSITIVE_INT, default=20, help="episodes per world and physics")
-    add("--latency", type=NATURAL_INT, default=0, metavar="STEPS",
-        help="also time STEPS control steps of the runtime on one thread (a benchmark: "
-        "run it alone)")  # fmt: skip
-    add("--json", type=Path, help="write the results here")
-    args = parser.parse_args(argv)
-    for world in args.world:
-        if not Path(world).is_file():
-            parser.error(f"--world: {world!r} not found")
+    """Console script ``rwalk-sim2sim`` (returns None: its exit status is 0)."""
+    args = parse_args(argv)
 
-    from rwalk import presets, sim2sim
+    from rwalk import sim2sim
     from rwalk.envs.torchrl_env import BatchedEnv
-    from rwalk.evaluation import acts_in, check_policy, load_policy
+    from rwalk.evaluation import evaluation_config, load_policy
     from rwalk.export import export_policy
     from rwalk.fidelity import BAND, CANDIDATES
 
-    saved = check_policy(args.checkpoint)
-    config = presets.evaluation_config(
-        **acts_in(args.checkpoint), max_steps=args.steps, command_range=saved.env.commands
-    )
-    env = BatchedEnv(args.episodes, config, seed=args.seed, task=saved.task)
+    config = evaluation_config(args.checkpoint, max_episode_steps=args.steps)
+    env = BatchedEnv(args.episodes, config, seed=args.seed)
+    for world in args.world:  # before anything is written
+        try:
+            sim2sim.check_world(world, env.core.world.dt)
+        except ValueError as error:
+            usage_error(PROG, f"--world: {error}")
     policy = load_policy(args.checkpoint, env)
     folder = args.out / "exported"
     export_policy(policy, folder)
@@ -79,11 +136,12 @@ def main(argv: list[str] | None = None) -> None:
                   f"{trace.first_difference}, max {trace.max_difference:.3g}")  # fmt: skip
     walks = []
     v_target = float(config.expected_velocity)
+    settle = sim2sim.Settle.of(env.core)
     for world in args.world:
         for name in ("env", "reference"):
             physics = None if name == "env" else CANDIDATES["reference"]
-            result = sim2sim.walk(folder, Path(world), args.walk_episodes, args.steps,
-                                  v_target, seed=args.seed, physics=physics)  # fmt: skip
+            result = sim2sim.walk(folder, world, args.walk_episodes, args.steps, v_target,
+                                  seed=args.seed, physics=physics, settle=settle)  # fmt: skip
             walks.append({"physics": name, **dataclasses.asdict(result)})
     if walks:
         print(sim2sim.walk_table(walks, BAND))
@@ -96,10 +154,12 @@ def main(argv: list[str] | None = None) -> None:
     if args.json:
         atomic_write_text(args.json, json.dumps({
             "checkpoint": str(args.checkpoint), "policy_gap": gap,
-            "closed_loop": [dataclasses.asdict(t) for t in traces], "walks": walks,
-            "latency": latency,
+            "closed_loop": [dataclasses.asdict(t) for t in traces],
+            "settle_steps": config.settle_steps, "walks": walks, "latency": latency,
         }, indent=2) + "\n")  # fmt: skip
 
 
-if __name__ == "__main__":
-    main()
+if __name__ == "__main__":  # through the module by name, where tyro reads Sim2SimArgs's types
+    from rwalk.runners.sim2sim import main as sim2sim_main
+
+    sim2sim_main()

@@ -5,26 +5,54 @@ python -m runners.walk_demo --world model/world_flat.xml --envs 64 --seconds 20
 
 from __future__ import annotations
 
-import argparse
 import time
+from dataclasses import dataclass
 
 from rwalk.analysis import walk
 from rwalk.base_gait import summary_lines
-from rwalk.cli import NATURAL_INT, POSITIVE_INT, SECONDS, UNIT_FLOAT, one_line_errors
+from rwalk.cli import command, one_line_errors, parse
+from rwalk.config import MAX_ENVS, MAX_STEPS
 from rwalk.core import ResidualWalkCore
 from rwalk.presets import base_gait_config
+from rwalk.runners.base_gait_report import MAX_SECONDS
+from rwalk.validation import require_at_least, require_at_most, require_in, require_positive
 
 
-@one_line_errors("rwalk.runners.walk_demo")
-def main(argv: list[str] | None = None) -> dict[str, float]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--world", default="model/world_flat.xml", help="MJCF world")
-    parser.add_argument("--envs", type=POSITIVE_INT, default=64, help="robots walked at once")
-    parser.add_argument("--seconds", type=SECONDS, default=20.0, help="simulated time")
-    parser.add_argument("--terrain-scale", type=UNIT_FLOAT, default=1.0, help="roughness 0..1")
-    parser.add_argument("--seed", type=NATURAL_INT, default=0, help="episode seed")
-    args = parser.parse_args(argv)
+@dataclass(frozen=True)
+class WalkDemoArgs:
+    """rwalk-walk-demo's command line (each field a flag)."""
 
+    world: str = "model/world_flat.xml"
+    """MJCF world"""
+    envs: int = 64
+    """robots walked at once"""
+    seconds: float = 20.0
+    """simulated time"""
+    terrain_scale: float = 1.0
+    """roughness 0..1"""
+    seed: int = 0
+    """episode seed"""
+
+    def __post_init__(self) -> None:
+        require_at_least(self, 1, "envs")
+        require_at_least(self, 0, "seed")
+        require_at_most(self, MAX_ENVS, "envs")
+        require_at_most(self, MAX_STEPS, "seed")
+        require_positive(self, "seconds")
+        require_at_most(self, MAX_SECONDS, "seconds")
+        require_in(self, "terrain_scale", 0.0, 1.0)
+
+
+def parse_args(argv: list[str] | None = None) -> WalkDemoArgs:
+    """``argv`` as rwalk-walk-demo's arguments; exits 2 with one line naming a bad flag."""
+    prog = command("rwalk.runners.walk_demo")
+    return parse(WalkDemoArgs, argv, prog=prog, description=__doc__)
+
+
+def demo(argv: list[str] | None = None) -> dict[str, float]:
+    """Run the command line ``argv``; returns the walk's summary
+    (``rwalk.analysis.WalkReport.summary``)."""
+    args = parse_args(argv)
     config = base_gait_config(args.world, terrain_scale=args.terrain_scale)
     core = ResidualWalkCore(config, args.envs, seed=args.seed)
     steps = max(1, round(args.seconds / core.control_dt))
@@ -38,5 +66,13 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     return summary
 
 
-if __name__ == "__main__":
-    main()
+@one_line_errors("rwalk.runners.walk_demo")
+def main(argv: list[str] | None = None) -> None:
+    """Console script ``rwalk-walk-demo`` (returns None: its exit status is 0)."""
+    demo(argv)
+
+
+if __name__ == "__main__":  # through the module by name, where tyro reads the Args' types
+    from rwalk.runners.walk_demo import main as demo_main
+
+    demo_main()
