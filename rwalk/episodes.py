@@ -82,6 +82,10 @@ class Episodes:
         first velocity before it has walked a cycle). Shape: (N, cycle steps). m/s."""
         self.recent_sum = torch.zeros(n, dtype=torch.float64)
         """The running sum of ``recent``. Shape: (N,). m/s."""
+        self.ripple = torch.zeros(n, dtype=torch.float64)
+        """Sum of |v_x - its mean over the last gait cycle| over the current episode's steps:
+        the speed's ripple within the stride, which a per-step error cannot drop below.
+        Shape: (N,). m/s."""
         self.slot = torch.zeros((), dtype=torch.long)
         """The ring's slot the next step writes (the same for every env)."""
 
@@ -96,7 +100,7 @@ class Episodes:
         self.x0[rows] = x0
         self.y0[rows] = y0
         self.fell[rows] = False
-        for total in (*self.sums.values(), self.distance, self.speed_error):
+        for total in (*self.sums.values(), self.distance, self.speed_error, self.ripple):
             total[rows] = 0.0
 
     def count(self) -> None:
@@ -133,6 +137,7 @@ class Episodes:
         self.recent_sum += velocity - self.recent[:, slot]  # elementwise: batch-independent
         self.recent[:, slot] = velocity
         self.slot.fill_((slot + 1) % self.recent.shape[1])
+        self.ripple += (velocity - self.recent_sum / self.recent.shape[1]).abs()
         return truncated
 
     def cycle_speed(self) -> Tensor:
@@ -150,8 +155,10 @@ class Episodes:
             Per-term episode sums (``"sum/<term>"``), ``"length"`` (steps actually
             walked, whatever ``episode_step`` was set to), ``"forward_velocity"``
             (mean over the episode, m/s), ``"target_velocity"`` (what the reward
-            tracked, m/s) and ``"velocity_error"`` (mean |v_x - v*| per step, m/s).
-            Each shape: (M,).
+            tracked, m/s), ``"velocity_error"`` (mean |v_x - v*| per step, m/s),
+            ``"velocity_bias"`` (forward_velocity - target_velocity, m/s) and
+            ``"velocity_ripple"`` (mean |v_x - its last gait cycle's mean| per step,
+            m/s). Each shape: (M,).
         """
         length = self.walked_steps[env_ids].to(torch.float64)
         log = {f"sum/{name}": total[env_ids] for name, total in self.sums.items()}
@@ -161,6 +168,8 @@ class Episodes:
             target[env_ids] if isinstance(target, Tensor) else torch.full_like(length, target)
         )
         log["velocity_error"] = self.speed_error[env_ids] / length.clamp(min=1.0)
+        log["velocity_bias"] = log["forward_velocity"] - log["target_velocity"]
+        log["velocity_ripple"] = self.ripple[env_ids] / length.clamp(min=1.0)
         return log
 
     def state(self) -> dict[str, Tensor]:
@@ -169,7 +178,7 @@ class Episodes:
             "episode_step": self.episode_step, "walked_steps": self.walked_steps,
             "x0": self.x0, "y0": self.y0, "fell": self.fell, "distance": self.distance,
             "speed_error": self.speed_error, "recent": self.recent,
-            "recent_sum": self.recent_sum, "slot": self.slot,
+            "recent_sum": self.recent_sum, "slot": self.slot, "ripple": self.ripple,
             **{f"sum/{name}": total for name, total in self.sums.items()},
         }  # fmt: skip
 

@@ -72,3 +72,18 @@ def test_any_task_can_be_asked_for_a_speed():
     _, _, _, _, info = env.step(np.zeros(12, dtype=np.float32))
     v = env.core.obs[0, 7].item()
     assert info["reward_components"]["velocity_tracking"] == 300.0 * (1.0 - abs(v - 0.2))
+
+
+def test_the_speed_error_splits_into_bias_and_ripple_by_hand():
+    # A 3-step gait cycle; the ring starts at the settled velocity 0. Cycle means after
+    # each step: 1/3, 1, 2, 3; |v - mean|: 2/3, 1, 1, 1.
+    ep = episodes.Episodes(1, [], control_dt=0.02, max_steps=10, cycle_steps=3)
+    zero = torch.zeros(1, dtype=torch.float64)
+    ep.start(torch.tensor([0]), zero, zero, zero)
+    for v in (1.0, 2.0, 3.0, 4.0):
+        ep.count()
+        ep.record({}, torch.tensor([v], dtype=torch.float64), 2.0, torch.tensor([False]))
+    log = ep.log(torch.tensor([0]), 2.0)
+    assert log["forward_velocity"].item() == 2.5 and log["velocity_bias"].item() == 0.5
+    assert log["velocity_error"].item() == (1 + 0 + 1 + 2) / 4
+    assert abs(log["velocity_ripple"].item() - (2 / 3 + 3) / 4) < 1e-15

@@ -36,7 +36,9 @@ class RslRlVecEnv(VecEnv):
     ``extras["log"]`` (means over the episodes that ended this step):
     ``Episode_Reward/<term>`` (per-step mean of each reward term),
     ``Episode/length``, ``Episode/fall_rate``, ``Episode/forward_velocity``,
-    ``Episode/velocity_error`` (|mean v_x - v*|), ``Episode/diverged``, and
+    ``Episode/velocity_error`` (|mean v_x - v*|), ``Episode/velocity_bias`` (mean v_x -
+    v*), ``Episode/step_velocity_error`` (mean |v_x - v*| per step: the evaluations'
+    error), ``Episode/velocity_ripple`` (its part within the stride), ``Episode/diverged``, and
     ``Perf/settle_share`` (share of all physics so far spent settling starts);
     on a terrain-levels map also ``Curriculum/terrain_level`` (mean level of all
     envs) and ``Curriculum/level_<kind>`` (of the envs on each kind of tile).
@@ -127,6 +129,9 @@ class RslRlVecEnv(VecEnv):
         log["Episode/fall_rate"] = stats["terminated"].double().mean()
         log["Episode/forward_velocity"] = velocity.mean()
         log["Episode/velocity_error"] = (velocity - stats["target_velocity"]).abs().mean()
+        log["Episode/velocity_bias"] = stats["velocity_bias"].mean()
+        log["Episode/step_velocity_error"] = stats["velocity_error"].mean()
+        log["Episode/velocity_ripple"] = stats["velocity_ripple"].mean()
         log["Episode/diverged"] = stats["diverged"].double().mean()
         log["Perf/settle_share"] = torch.tensor(self.core.settle_share)
         return log | self.core.curriculum.log()
