@@ -27,18 +27,24 @@ from rwalk.constants import OBS_CONTACT, OBS_JOINT_VEL
 from rwalk.kinematics import LegGeometry
 from rwalk.observations import HEIGHT_OFFSETS, foot_clearances, foot_velocities
 
+#: Largest size of a weight (the spec's are at most 300 a step; a weight of 1e308 made the
+#: reward infinite and PPO's loss NaN).
+MAX_WEIGHT = 1e6
+
 
 def _require_finite_numbers(config: object) -> None:
-    """Raise ValueError naming ``Class.field`` for a field that is not a finite number."""
+    """Raise ValueError naming ``Class.field`` for a field that is not a finite number
+    within ±MAX_WEIGHT."""
     for f in fields(config):
         value = getattr(config, f.name)
         if (
             not isinstance(value, (int, float))
             or isinstance(value, bool)
-            or not math.isfinite(value)
+            or not abs(value) <= MAX_WEIGHT
         ):
             raise ValueError(
-                f"{type(config).__name__}.{f.name} must be a finite number, got {value!r}"
+                f"{type(config).__name__}.{f.name} must be a finite number within "
+                f"±{MAX_WEIGHT:g}, got {value!r}"
             )
 
 

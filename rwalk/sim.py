@@ -19,6 +19,8 @@ import mujoco
 import numpy as np
 from mujoco import batch as mjbatch
 
+from rwalk.threads import cores
+
 #: MuJoCo's warnings (e.g. an unstable simulation) go here instead of MUJOCO_LOG.TXT.
 MUJOCO_LOGGER = logging.getLogger("rwalk.mujoco")
 
@@ -39,7 +41,8 @@ class BatchedSim:
     Args:
         model: the compiled model (copied by the batch; see ``set_model``).
         num_sims: number of simulations (rows).
-        num_threads: worker threads including the caller's; 0 for all cores.
+        num_threads: worker threads including the caller's; 0 for every core this process
+            may run on (``rwalk.threads.cores``: its CPU affinity).
     """
 
     def __init__(self, model: mujoco.MjModel, num_sims: int, num_threads: int = 0) -> None:
@@ -48,7 +51,7 @@ class BatchedSim:
         if num_threads < 0:
             raise ValueError(f"num_threads must be >= 0 (0 = all cores), got {num_threads!r}")
         self.model = model
-        self.batch = mjbatch.Batch(model, nsim=num_sims, nthread=num_threads)
+        self.batch = mjbatch.Batch(model, nsim=num_sims, nthread=num_threads or cores())
         self.num_sims = num_sims
         # Outputs must be bound before the calls that fill them.
         self.sensordata: np.ndarray = self.batch.bind("sensordata")

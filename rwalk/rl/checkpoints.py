@@ -80,6 +80,28 @@ def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
     return atomic_write(path, lambda file: file.write(text.encode("utf-8")))
 
 
+def check_writable(path: str | os.PathLike[str], what: str) -> None:
+    """Refuse, before any work, a file that could not be written at ``path``: the path is
+    a folder, or its nearest existing folder is a file or not writable.
+
+    Raises:
+        ValueError: naming ``what`` (the flag), the path and why.
+    """
+    path = Path(path)
+    folder = path.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if path.is_dir():
+        why = "is a folder"
+    elif not folder.is_dir():
+        why = f"cannot be written: {str(folder)!r} is not a folder"
+    elif not os.access(folder, os.W_OK | os.X_OK):
+        why = f"cannot be written: {str(folder)!r} is not writable"
+    else:
+        return
+    raise ValueError(f"{what} {str(path)!r} {why}")
+
+
 def save_checkpoint(obj: Any, path: str | os.PathLike[str]) -> Path:
     """``torch.save`` through ``atomic_write``."""
     return atomic_write(path, lambda file: torch.save(obj, file))
@@ -256,6 +278,10 @@ def check_rsl_rl(loaded: dict[str, Any], path: str | os.PathLike[str]) -> dict[s
             raise CheckpointError(
                 f"checkpoint {str(path)!r}: {key!r} must be a dict of named tensors"
             )
+        for name, tensor in value.items():
+            if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+                raise CheckpointError(f"checkpoint {str(path)!r}: {key}[{quote(name)!r}] holds "
+                                      "non-finite values (a diverged run?)")  # fmt: skip
     return loaded
 
 
