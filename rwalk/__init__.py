@@ -83,6 +83,7 @@ def _register() -> None:
         import gymnasium
     except ImportError:  # a robot's runtime (rwalk.deploy) needs no Gymnasium
         return
+    from rwalk.constants import EPISODE_STEPS  # torch loads later: a rank sets up first
 
     views = {GYM_ID: "ResidualWalkEnv", ADAPTIVE_GYM_ID: "AdaptiveGaitEnv"}
     for env_id, view in views.items():
@@ -92,7 +93,7 @@ def _register() -> None:
             gymnasium.register(
                 id=env_id,
                 entry_point=f"rwalk.envs.gym_env:{view}",
-                max_episode_steps=1000,
+                max_episode_steps=EPISODE_STEPS,
                 kwargs={"max_episode_steps": None},
             )
 

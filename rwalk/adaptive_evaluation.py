@@ -26,8 +26,17 @@ from pathlib import Path
 import torch
 
 from rwalk import episodes, presets
+from rwalk.config import EnvConfig
 from rwalk.envs.torchrl_env import BatchedEnv
-from rwalk.evaluation import Evaluation, Policy, acts_in, evaluate, load_policy, saved_args
+from rwalk.evaluation import (
+    Evaluation,
+    Policy,
+    commanded,
+    evaluate,
+    evaluation_config,
+    load_policy,
+    trained_env,
+)
 from rwalk.levels import TerrainLevels
 from rwalk.robustness import HELD_OUT_MAP_SEED, on_map
 from rwalk.tasks.adaptive_gait import ADAPTED
@@ -36,6 +45,8 @@ from rwalk.tasks.adaptive_gait import ADAPTED
 SPEEDS = (0.05, 0.10, 0.15, 0.20, 0.25)
 #: The kinds of tile ``gait_by_terrain`` walks on, flat first.
 TERRAIN_KINDS = ("flat", "rough", "slopes", "steps", "stones")
+#: Steps of each episode of ``gait_by_terrain`` (10 s at 50 Hz).
+GAIT_STEPS = 500
 #: Steps at the start of each episode left out of the gait statistics: the policy moves
 #: the parameters away from the starting gait within a second.
 SKIP_STEPS = 50
@@ -46,23 +57,21 @@ HARD_FROM_LEVEL = 5
 ADAPTATION_FLOOR = 1.5
 
 
-def _commanded(checkpoint: Path | None) -> bool:
-    return checkpoint is not None and bool(saved_args(checkpoint).get("command_range"))
-
-
 def run_row(name, checkpoint, episodes, seed, scale, command=None, **lengths) -> Evaluation:
     """One row: the base gait (checkpoint None) or a policy, on ``episodes`` paired episodes
     of the rough world at ``scale``, asked for ``command`` m/s (None: a commanded policy is
     asked for the gait's speed). ``lengths``: max_steps, settle_steps (the spec's
     evaluation's by default)."""
-    acts = {"task": "residual_walk"} if checkpoint is None else acts_in(checkpoint)
-    if command is None and _commanded(checkpoint):
-        command = presets.EnvConfig().expected_velocity
-    config = presets.evaluation_config(
-        **acts, **lengths, terrain_scale=scale,
+    if command is None and commanded(checkpoint):
+        command = EnvConfig().expected_velocity
+    steps = {"max_episode_steps": lengths["max_steps"]} if "max_steps" in lengths else {}
+    if "settle_steps" in lengths:
+        steps["settle_steps"] = lengths["settle_steps"]
+    config = evaluation_config(
+        checkpoint, terrain_scale=scale, **steps,
         command_range=None if command is None else (command, command),
     )  # fmt: skip
-    env = BatchedEnv(episodes, config, seed=seed, task=acts["task"])
+    env = BatchedEnv(episodes, config, seed=seed)
     policy = None if checkpoint is None else load_policy(checkpoint, env)
     row = evaluate(name, env, seed, policy)
     asked = "-" if command is None else f"{command:.3f}"
@@ -110,7 +119,7 @@ def gait_by_terrain(
     checkpoint: Path,
     episodes: int,
     seed: int,
-    steps: int = 500,
+    steps: int = GAIT_STEPS,
     levels: TerrainLevels | None = None,
 ) -> list[GaitStats]:
     """The adaptive policy's gait on each of ``TERRAIN_KINDS`` at each level of a held-out
@@ -118,34 +127,33 @@ def gait_by_terrain(
     paired episodes each, ``steps`` long; the first SKIP_STEPS of each are left out. A
     commanded policy is asked for the gait's speed."""
     return walk_levels(
-        lambda env: load_policy(checkpoint, env), acts_in(checkpoint)["gait_action"],
-        _commanded(checkpoint), episodes, seed, steps, levels,
+        lambda env: load_policy(checkpoint, env), trained_env(checkpoint),
+        commanded(checkpoint), episodes, seed, steps, levels,
     )  # fmt: skip
 
 
 def walk_levels(
     policy_for: Callable[[BatchedEnv], Policy],
-    gait_action: str,
-    commanded: bool,
+    trained: EnvConfig,
+    asked: bool,
     episodes: int,
     seed: int,
     steps: int,
     levels: TerrainLevels | None = None,
 ) -> list[GaitStats]:
-    """``gait_by_terrain`` of the policy that ``policy_for`` builds on each level's env
-    (adaptive_gait with ``gait_action``; asked for the gait's speed if ``commanded``)."""
+    """``gait_by_terrain`` of the policy that ``policy_for`` builds on each level's env (the
+    evaluation env of a policy trained in ``trained``, an adaptive task's config; asked
+    for the gait's speed if ``asked``)."""
     levels = levels or TerrainLevels(seed=HELD_OUT_MAP_SEED)
-    speed = presets.EnvConfig().expected_velocity
+    speed = EnvConfig().expected_velocity
     kinds = len(TERRAIN_KINDS)
     out = []
     for level in range(levels.levels):
-        base = presets.evaluation_config(
-            "adaptive_gait", max_steps=steps, gait_action=gait_action,
-            command_range=(speed, speed) if commanded else None,
-        )  # fmt: skip
+        base = presets.evaluation_env(trained, max_episode_steps=steps,
+                                      command_range=(speed, speed) if asked else None)  # fmt: skip
         config = on_map(base, dataclasses.replace(
             levels, kinds=TERRAIN_KINDS, start_level=level, curriculum=False))  # fmt: skip
-        env = BatchedEnv(episodes * kinds, config, seed=seed, task="adaptive_gait")
+        env = BatchedEnv(episodes * kinds, config, seed=seed)
         sums, squares, counts, fell = _walk(env, policy_for(env), seed, steps)
         for k, kind in enumerate(TERRAIN_KINDS):
             rows = slice(k, None, kinds)  # env i walks on kind i % kinds

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields
 
+from rwalk.constants import EPISODE_STEPS, SETTLE_STEPS
 from rwalk.gait import GaitParameters
 from rwalk.levels import TerrainLevels
 from rwalk.observations import ObservationNoise
@@ -41,9 +42,9 @@ class EnvConfig:
     """The fixed base gait."""
     residual_scale: float = 0.02
     """Metres of foot offset per unit of action."""
-    max_episode_steps: int = 1000
+    max_episode_steps: int = EPISODE_STEPS
     """Env steps before truncation."""
-    settle_steps: int = 500
+    settle_steps: int = SETTLE_STEPS
     """Env steps of zero-residual gait run at each reset before the episode starts."""
     control_dt: float | None = 0.02
     """Duration of one env step (0.02 s = 50 Hz control). Seconds. None: decimation
@@ -142,8 +143,10 @@ class EnvConfig:
             value = getattr(self, name)
             if name == "decimation" and value is None:
                 continue
-            if not isinstance(value, int) or isinstance(value, bool) or value < low:
-                raise bad(name, f"must be an integer >= {low}")
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise bad(name, "must be an integer")
+            if value < low:
+                raise bad(name, f"must be >= {low}")
             if high is not None and value > high:
                 raise bad(name, f"must be at most {high}")
         if self.decimation is not None and self.decimation > MAX_DECIMATION:
@@ -169,13 +172,14 @@ class EnvConfig:
         if self.command_range is not None and not (
             isinstance(self.command_range, tuple)
             and len(self.command_range) == 2
-            and all(_is_number(v) and abs(v) <= MAX_SPEED for v in self.command_range)
+            and all(_is_number(v) for v in self.command_range)
             and self.command_range[0] <= self.command_range[1]
         ):
-            raise bad(
-                "command_range",
-                f"must be None or (low, high) m/s with low <= high, each within ±{MAX_SPEED:g}",
-            )
+            raise bad("command_range", "must be LOW HIGH m/s with LOW <= HIGH (or None)")
+        if self.command_range is not None and not all(
+            abs(v) <= MAX_SPEED for v in self.command_range
+        ):
+            raise bad("command_range", f"must be speeds within ±{MAX_SPEED:g} m/s")
 
     def substeps(self, timestep: float) -> int:
         """Physics substeps per env step at a physics ``timestep`` (seconds).
@@ -212,3 +216,17 @@ class EnvConfig:
     def expected_velocity(self) -> float:
         """step_length / cycle_time. m/s."""
         return self.gait.expected_velocity
+
+    @property
+    def varies(self) -> bool:
+        """Whether the world varies from episode to episode beyond its starts: terrain
+        levels, randomised physics, pushes or observation noise."""
+        parts = (self.terrain_levels, self.randomization, self.pushes, self.observation_noise)
+        return any(part is not None for part in parts)
+
+
+def convert(kind: type[EnvConfig], config: EnvConfig, **extra) -> EnvConfig:
+    """A ``kind`` (a task's config class) with ``config``'s ``EnvConfig`` fields and
+    ``extra`` (``kind``'s own fields; the others at their defaults)."""
+    base = {f.name: getattr(config, f.name) for f in fields(EnvConfig)}
+    return kind(**(base | extra))

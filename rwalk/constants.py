@@ -53,6 +53,11 @@ OBS_FOOT_POS = slice(37, 49)
 OBS_FOOT_VEL = slice(49, 61)
 OBS_CONTACT = slice(61, 65)
 
+#: The spec's episode: env steps before truncation, and steps of zero-residual gait that
+#: settle each start (``EnvConfig``'s defaults; 20 s and 10 s at 50 Hz).
+EPISODE_STEPS = 1000
+SETTLE_STEPS = 500
+
 MODEL_DIR = Path(__file__).resolve().parent / "model"
 WORLD_TRAIN = "world_train.xml"
 WORLD_FLAT = "world_flat.xml"

@@ -4,9 +4,11 @@
 (env i starts like a single env seeded seed + i, whatever ran before) and sums
 it up as an ``Evaluation``, through the one episode path
 (``rwalk.episodes.step``) that training logs with. ``load_policy(checkpoint,
-env)`` rebuilds a checkpoint's deterministic policy from the configs its run
-stored in config.json (``rwalk.rl.config``), with the observation groups of the
-one rule. ``rwalk-play``, ``rwalk-robustness`` and the reports stand on these.
+env)`` rebuilds a checkpoint's deterministic policy from its run's record
+(config.json, ``rwalk.rl.record``): its models and observation groups as they
+trained; ``evaluation_config(checkpoint)`` is the evaluation env its policy acts
+in, from that record (``rwalk.presets.evaluation_env``). ``rwalk-play``,
+``rwalk-robustness`` and the reports stand on these.
 """
 
 from __future__ import annotations
@@ -23,11 +25,13 @@ from pathlib import Path
 import torch
 
 from rwalk import episodes, presets
+from rwalk.config import EnvConfig
 from rwalk.constants import OBS_JOINT_VEL
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.rewards import servo_power
 from rwalk.rl.checkpoints import CheckpointError, check_rsl_rl, load_checkpoint, quote, trainer_of
-from rwalk.rl.config import load_saved_args, observation_groups
+from rwalk.rl.config import Training
+from rwalk.rl.record import read_record
 from rwalk.rl.rsl_rl_env import RslRlVecEnv
 
 #: Which command wrote a checkpoint, by its "trainer" key (or its layout, in older files).
@@ -57,6 +61,12 @@ class Evaluation:
     cost_of_transport: float = math.nan
     """power / (m g forward_velocity), m the model's mass (a randomised payload not
     counted): energy per unit of weight and distance. Dimensionless."""
+    velocity_bias: float = math.nan
+    """Mean over episodes of mean v_x - v*: the error's part that the mean speed makes. m/s."""
+    velocity_ripple: float = math.nan
+    """Mean over episodes of the mean |v_x - its last gait cycle's mean| per step: the
+    error's part within the stride (``velocity_error`` is at least about
+    ``|velocity_bias|`` and, where the cycle's mean is on target, about this). m/s."""
 
     @classmethod
     def from_json(cls, data: object) -> Evaluation:
@@ -112,27 +122,47 @@ def read_results(path: Path) -> object:
         raise ValueError(f"{str(path)!r} is not JSON ({str(error)[:120]})") from None
 
 
-def saved_run(checkpoint: Path):
-    """The flags of ``checkpoint``'s run, read as data from its config.json (``TrainArgs``:
-    ``.run``, ``.env``, ``.train`` are its configs).
+def saved_run(checkpoint: Path) -> Training:
+    """The record of ``checkpoint``'s run, read as data from its config.json.
 
     Raises:
-        FileNotFoundError, ConfigError: naming the file (``rwalk.rl.config.load_saved_args``).
+        FileNotFoundError, ConfigError: naming the file (``rwalk.rl.record.read_record``).
     """
-    return load_saved_args(Path(checkpoint).parent / "config.json")
+    return read_record(Path(checkpoint).parent / "config.json")
 
 
-def acts_in(checkpoint: Path) -> dict[str, str]:
-    """What an env must be for ``checkpoint``'s policy to act in it: its run's ``task``
-    and ``gait_action`` (how the adaptive task reads the action; keyword arguments of
-    ``presets.evaluation_config``)."""
-    env = saved_run(checkpoint).env
-    return {"task": env.task, "gait_action": env.gait_action}
+def trained_env(checkpoint: Path | None, task: str = "residual_walk") -> EnvConfig:
+    """The env config ``checkpoint``'s policy trained in (its record's); without a
+    checkpoint (the base gait), ``task``'s defaults."""
+    if checkpoint is None:
+        return presets.get_task(task).config_type()
+    return saved_run(checkpoint).env
 
 
-def saved_args(checkpoint: Path) -> dict:
-    """The training flags of ``checkpoint``'s run as a dict (``saved_run``)."""
-    return dataclasses.asdict(saved_run(checkpoint))
+def task_of(checkpoint: Path | None, task: str = "residual_walk") -> str:
+    """``checkpoint``'s task (its record's); without a checkpoint, ``task``."""
+    return task if checkpoint is None else saved_run(checkpoint).task
+
+
+def evaluation_config(checkpoint: Path | None, task: str = "residual_walk",
+                      **changes) -> EnvConfig:  # fmt: skip
+    """The evaluation episodes (``presets.EVALUATION``) as ``checkpoint``'s policy acts in
+    them (``presets.evaluation_env`` of its record's env and task; the base gait's:
+    ``task``'s), with ``changes``."""
+    return presets.evaluation_env(trained_env(checkpoint, task), task=task_of(checkpoint, task),
+                                  **changes)  # fmt: skip
+
+
+def evaluation_env(checkpoint: Path | None, num_envs: int, seed: int,
+                   task: str = "residual_walk", **changes) -> BatchedEnv:  # fmt: skip
+    """``num_envs`` envs (seeded ``seed``) of ``evaluation_config``, of the record's task."""
+    config = evaluation_config(checkpoint, task, **changes)
+    return BatchedEnv(num_envs, config, seed=seed, task=task_of(checkpoint, task))
+
+
+def commanded(checkpoint: Path | None) -> bool:
+    """Whether ``checkpoint``'s policy trained with commands (it reads the piece command)."""
+    return checkpoint is not None and trained_env(checkpoint).command_range is not None
 
 
 def check_checkpoint(checkpoint: Path) -> None:
@@ -174,10 +204,7 @@ def check_policy(checkpoint: Path, task: str | None = None):
         raise ValueError(
             f"checkpoint {str(checkpoint)!r} is a {args.task!r} policy, not a {task!r} one"
         )
-    config = presets.evaluation_config(
-        **acts_in(checkpoint), settle_steps=0, command_range=args.env.commands
-    )
-    load_policy(checkpoint, BatchedEnv(1, config, seed=0, task=args.task))
+    load_policy(checkpoint, evaluation_env(checkpoint, 1, seed=0, settle_steps=0))
     return args
 
 
@@ -208,9 +235,9 @@ class Policy:
         return bool(self.model.is_recurrent)
 
 
-def policy_model(args, adapter: RslRlVecEnv, state: dict) -> torch.nn.Module:
+def policy_model(args: Training, adapter: RslRlVecEnv, state: dict) -> torch.nn.Module:
     """The actor (PPO) or student (distillation) of a checkpoint's ``state``, built from its
-    run's flags ``args`` on the groups of ``adapter``, in eval mode.
+    run's record ``args`` on the groups of ``adapter``, in eval mode.
 
     Raises:
         CheckpointError: naming nothing of the file's content, if its model does not have
@@ -235,7 +262,9 @@ def policy_model(args, adapter: RslRlVecEnv, state: dict) -> torch.nn.Module:
 
 def load_policy(checkpoint: Path, env: BatchedEnv) -> Policy:
     """The checkpoint's deterministic policy on ``env`` (a PPO actor or a distilled
-    student, MLP or recurrent), rebuilt from its run's config.json.
+    student, MLP or recurrent), rebuilt from its run's record (config.json): its models
+    and its policy's pieces. The env must read the action as the run's did (the task's
+    ``action_fields``, e.g. the adaptive task's gait_action).
 
     Raises:
         FileNotFoundError, ValueError (``CheckpointError``, ``ConfigError``): naming the
@@ -248,15 +277,15 @@ def load_policy(checkpoint: Path, env: BatchedEnv) -> Policy:
             f"checkpoint {str(checkpoint)!r} is a {args.task!r} policy; the env runs "
             f"{env.core.task.name!r}"
         )
-    action = getattr(env.core.config, "gait_action", args.env.gait_action)
-    if action != args.env.gait_action:
-        raise ValueError(
-            f"checkpoint {str(checkpoint)!r} sets the gait with --gait-action "
-            f"{args.env.gait_action}; the env reads its action as {action!r}"
-        )
-    groups = observation_groups(env.core.task, args.env, args.train)
-    adapter = RslRlVecEnv(env, policy_obs=groups["policy"], critic_obs=(),
-                          reward_scale=args.reward_scale)  # fmt: skip
+    for name in env.core.task.action_fields:
+        mine, theirs = getattr(env.core.config, name), getattr(args.env, name)
+        if mine != theirs:
+            raise ValueError(
+                f"checkpoint {str(checkpoint)!r} trained with --env.{name.replace('_', '-')} "
+                f"{theirs}; the env reads its action as {mine!r}"
+            )
+    adapter = RslRlVecEnv(env, policy_obs=args.train.policy_obs, critic_obs=(),
+                          reward_scale=args.train.reward_scale)  # fmt: skip
     state = check_rsl_rl(load_checkpoint(checkpoint), checkpoint)
     try:
         model = policy_model(args, adapter, state)
@@ -331,6 +360,8 @@ def evaluate(
         mean_length=float(length.mean()),
         power=power,
         cost_of_transport=power / (weight * forward_velocity) if forward_velocity > 0 else math.nan,
+        velocity_bias=float(first["velocity_bias"].mean()),
+        velocity_ripple=float(first["velocity_ripple"].mean()),
     )
 
 
@@ -338,13 +369,14 @@ def table(rows: list[Evaluation]) -> str:
     """The evaluations as a Markdown table."""
     lines = [
         "| run | episodes | mean return | fall rate | forward velocity (m/s) "
-        "| velocity-tracking error (m/s) | contact-pattern score | mean length |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| velocity-tracking error (m/s) | bias (m/s) | ripple (m/s) "
+        "| contact-pattern score | mean length |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in rows:
         lines.append(
             f"| {r.name} | {r.episodes} | {r.mean_return:,.0f} | {r.fall_rate:.1%} | "
-            f"{r.forward_velocity:.4f} | {r.velocity_error:.4f} | {r.contact_score:.3f} | "
-            f"{r.mean_length:.0f} |"
+            f"{r.forward_velocity:.4f} | {r.velocity_error:.4f} | {r.velocity_bias:+.4f} | "
+            f"{r.velocity_ripple:.4f} | {r.contact_score:.3f} | {r.mean_length:.0f} |"
         )
     return "\n".join(lines)

@@ -190,40 +190,25 @@ def _policy_and_pieces(runner_or_policy, pieces: Sequence[str] | None):
     return policy, env, layout
 
 
-def deploy_spec(core) -> dict[str, Any]:
+def deploy_spec(core) -> dict[str, Any] | None:
     """What ``rwalk.deploy`` needs beside the ONNX graph to run a policy of ``core``'s
-    task: the task, the timing, the residual scale, the legs, the gait's tables (exact:
-    JSON writes each float's shortest round-trip form) and the cycle-speed window."""
-    spec = {
+    task: the task's own part (``Task.deploy_spec``: its runtime, the gait's tables or
+    constants, exact: JSON writes each float's shortest round-trip form), the timing,
+    the residual scale, the legs and the cycle-speed window. None for a task without a
+    deploy runtime."""
+    own = core.task.deploy_spec(core)
+    if own is None:
+        return None
+    return {
         "task": core.task.name,
         "substeps": core.decimation,
         "dt": core.world.dt,
         "sensors": "rwalk.deploy.SENSOR_LAYOUT: MuJoCo sensordata, 65 values",
         "cycle_steps": core.episodes.recent.shape[1],
         "leg_geometry": dataclasses.asdict(core.geometry),
+        "residual_scale": core.config.residual_scale,
+        **own,
     }
-    controller, task = core.controller, core.task
-    spec["residual_scale"] = core.config.residual_scale
-    if task.name == "residual_walk":
-        spec["gait"] = {
-            "targets": controller.target_table.tolist(),
-            "phase_features": controller.phase_table.tolist(),
-        }
-    else:  # adaptive_gait: the trot's constants, the parameters' start, ranges and action
-        params = controller.params
-        spec["gait"] = {
-            "period": controller.period,
-            "duty_factor": params.duty_factor,
-            "stance_depth": params.stance_depth,
-            "offsets": controller.leg_offsets.tolist(),
-            "swing_points": controller.swing_points.tolist(),
-            "neutral": controller.neutral.tolist(),
-        }
-        spec["adaptive"] = {
-            "gait_action": core.config.gait_action,
-            **{key: getattr(task, key).tolist() for key in ("start", "low", "high", "delta")},
-        }
-    return spec
 
 
 def export_policy(
@@ -262,8 +247,9 @@ def export_policy(
         "observation_normalizer": "included: feed raw observations",
         "files": {"torchscript": "policy.pt", "onnx": "policy.onnx"},
     }
-    if task is not None:
-        description["deploy"] = deploy_spec(env.core)
+    deploy = deploy_spec(env.core) if task is not None else None
+    if deploy is not None:  # a task without a deploy runtime exports without the section
+        description["deploy"] = deploy
 
     scripted = torch.jit.script(policy.as_jit().to("cpu").eval())
     jit_path = atomic_write(folder / "policy.pt", lambda file: torch.jit.save(scripted, file))

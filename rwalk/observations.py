@@ -59,24 +59,26 @@ class ObservationNoise:
     """
 
     torso_pos: float = 0.005
-    """m."""
+    """Half-width of the torso position's noise. m."""
     torso_quat: float = 0.01
+    """Half-width of the torso orientation quaternion's noise (each component)."""
     torso_linvel: float = 0.015
-    """m/s (about 10% of the walking speed, like legged_gym's 0.1 m/s at ~1 m/s)."""
+    """Half-width of the torso velocity's noise. m/s (about 10% of the walking speed, like
+    legged_gym's 0.1 m/s at ~1 m/s)."""
     torso_angvel: float = 0.1
-    """rad/s."""
+    """Half-width of the torso angular velocity's noise. rad/s."""
     joint_pos: float = 0.01
-    """rad."""
+    """Half-width of the joint angles' noise. rad."""
     joint_vel: float = 0.3
-    """rad/s."""
+    """Half-width of the joint speeds' noise. rad/s."""
     foot_pos: float = 0.002
-    """m."""
+    """Half-width of the foot positions' noise (torso frame). m."""
     foot_vel: float = 0.03
-    """m/s."""
+    """Half-width of the foot velocities' noise (torso frame). m/s."""
     lateral_offset: float = 0.005
-    """m."""
+    """Half-width of the lateral offset piece's noise. m."""
     gait: float = 0.0
-    """The adaptive task's gait parameters (normalised)."""
+    """Half-width of the noise on the adaptive task's gait parameters (normalised)."""
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -189,7 +189,8 @@ class _RandomizationMethods:
 
 def _range_field(name: str) -> tuple:
     row = _FIRST[name]
-    return (name, tuple, dataclasses.field(default=row.default, metadata={"doc": row.doc}))
+    kind = tuple[int, int] if row.op == "latency" else tuple[float, float]
+    return (name, kind, dataclasses.field(default=row.default, metadata={"doc": row.doc}))
 
 
 #: The config of physics randomisation: its fields are the ranges of PHYSICS_PARAMS.
@@ -199,7 +200,8 @@ Randomization = dataclasses.make_dataclass(
     bases=(_RandomizationMethods,),
     frozen=True,
     namespace={"__module__": __name__, "__qualname__": "Randomization",
-               "__doc__": _RandomizationMethods.__doc__},
+               "__doc__": _RandomizationMethods.__doc__ + "\n    Attributes:\n" + "".join(
+                   f"        {name}: (min, max). {_FIRST[name].doc}\n" for name in _RANGES)},
 )  # fmt: skip
 PhysicsRandomization = Randomization
 

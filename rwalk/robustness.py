@@ -31,11 +31,12 @@ from rwalk.config import EnvConfig
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.evaluation import (
     Evaluation,
-    acts_in,
     evaluate,
     fall_interval,
     load_policy,
     read_results,
+    task_of,
+    trained_env,
 )
 from rwalk.levels import TerrainLevels
 from rwalk.perturbations import Pushes
@@ -138,14 +139,13 @@ def read_rows(path: Path) -> list[Row]:
 def condition_config(
     name: str,
     map_level: int = 6,
-    max_steps: int = 1000,
-    settle_steps: int = 500,
-    task: str = "residual_walk",
-    gait_action: str = "delta",
+    max_steps: int = presets.EVALUATION.max_episode_steps,
+    settle_steps: int = presets.EVALUATION.settle_steps,
+    trained: EnvConfig | None = None,
 ) -> EnvConfig:
-    """The episodes of condition ``name`` for a policy of ``task`` (and ``gait_action``,
-    ``evaluation.acts_in``) (the evaluation's:
-    ``max_steps`` long after ``settle_steps`` of settling; on a map at most
+    """The episodes of condition ``name`` for a policy trained in ``trained`` (its record's
+    env; None: the residual task's defaults, the base gait's), the evaluation's:
+    ``max_steps`` long after ``settle_steps`` of settling (on a map at most
     MAP_SETTLE_STEPS).
 
     Raises:
@@ -156,9 +156,9 @@ def condition_config(
     # Every episode's target is the gait's speed, offered as the piece ``command`` too: a
     # policy trained with commands reads it, the others do not (the same episodes).
     speed = EnvConfig().expected_velocity
-    base = presets.evaluation_config(
-        task, max_steps=max_steps, settle_steps=settle_steps, command_range=(speed, speed),
-        gait_action=gait_action,
+    base = presets.evaluation_env(
+        trained or EnvConfig(), max_episode_steps=max_steps, settle_steps=settle_steps,
+        command_range=(speed, speed),
     )  # fmt: skip
     return CONDITIONS[name][1](base, map_level)
 
@@ -171,16 +171,15 @@ def run_condition(
     config: Callable[..., EnvConfig],
 ) -> list[Row]:
     """Every policy (None: the base gait, on the residual task) on the same paired episodes
-    of one condition, each on an env its policy acts in (``config(**evaluation.acts_in(
-    checkpoint))``): an adaptive and a residual policy meet the same terrain, physics draws
-    and kicks from the same starts."""
-    envs: dict[tuple, BatchedEnv] = {}
+    of one condition, each on an env its policy acts in (``config(trained=its record's
+    env)``): an adaptive and a residual policy meet the same terrain, physics draws and
+    kicks from the same starts."""
+    envs: dict[tuple[str, EnvConfig], BatchedEnv] = {}
     rows = []
     for label, checkpoint in policies.items():
-        acts = {"task": "residual_walk"} if checkpoint is None else acts_in(checkpoint)
-        key = tuple(acts.items())
+        key = (task_of(checkpoint), config(trained=trained_env(checkpoint)))
         if key not in envs:
-            envs[key] = BatchedEnv(episodes, config(**acts), seed=seed, task=acts["task"])
+            envs[key] = BatchedEnv(episodes, key[1], seed=seed, task=key[0])
         env = envs[key]
         policy = None if checkpoint is None else load_policy(checkpoint, env)
         rows.append(Row(name, label, evaluate(label, env, seed, policy)))

@@ -11,9 +11,9 @@ and 1 is the full roughness of the committed map.
 
 from __future__ import annotations
 
-import argparse
 import struct
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
@@ -89,19 +89,29 @@ def scaled(base: np.ndarray, scale: float) -> np.ndarray:
     return mean + scale * (base - mean)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seed", type=int, default=TERRAIN_SEED)
-    parser.add_argument(
-        "--out", type=Path, default=Path(__file__).resolve().parent / "model" / "terrain.png"
-    )
-    args = parser.parse_args()
+@dataclass(frozen=True)
+class TerrainArgs:
+    """Write the training world's heightfield image (model/terrain.png) from its seed."""
+
+    seed: int = TERRAIN_SEED
+    """the heightfield's random seed"""
+    out: Path = Path(__file__).resolve().parent / "model" / "terrain.png"
+    """the PNG to write"""
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m rwalk.terrain``: regenerate the heightfield image."""
+    from rwalk.cli import parse
+
+    args = parse(TerrainArgs, argv, prog="python -m rwalk.terrain", description=__doc__)
     write_png(args.out, quantize(generate_heightmap(args.seed)))
     print(f"wrote {args.out} (seed {args.seed}, {TERRAIN_ROWS}x{TERRAIN_COLS})")
 
 
-if __name__ == "__main__":
-    main()
+if __name__ == "__main__":  # through the module by name, where tyro reads TerrainArgs's types
+    from rwalk.terrain import main as terrain_main
+
+    terrain_main()
 
 
 class Terrain:

@@ -15,11 +15,11 @@ import torch
 from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.collectors.distributed import DistributedCollector
 
-from rwalk.cli import parse_dataclass
 from rwalk.observations import PRIVILEGED_PIECES
 from rwalk.presets import TrainingEnv
 from rwalk.rl.checkpoints import load_checkpoint
 from rwalk.rl.config import observation_groups
+from rwalk.rl.legacy import TorchRLArgs as Args
 from rwalk.rl.torchrl_collect import (
     WorkerDied,
     WorkerEnv,
@@ -31,7 +31,6 @@ from rwalk.rl.torchrl_collect import (
 )
 from rwalk.rl.torchrl_ppo import make_modules
 from rwalk.runners import train_torchrl
-from rwalk.runners.train_torchrl import Args
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = [
@@ -91,7 +90,7 @@ def test_two_process_workers_train_two_iterations_and_write_checkpoints(tmp_path
     assert saved["iteration"] == 2 and saved["trainer"] == "torchrl"
     assert saved["obs_norm"]["loc"].shape == saved["obs_norm"]["scale"].shape
     config = json.loads((tmp_path / "config.json").read_text())
-    assert config["args"]["collectors"] == 2 and config["args"]["backend"] == "process"
+    assert config["train"]["collectors"] == 2 and config["train"]["backend"] == "process"
 
 
 @pytest.mark.slow
@@ -250,9 +249,9 @@ def test_worker_envs_pickle_and_share_the_cores():
 )  # fmt: skip
 def test_bad_collector_flags_are_usage_errors(flags, message, capsys):
     with pytest.raises(SystemExit) as exit_:
-        parse_dataclass(Args, flags, None, prog="rwalk-train-torchrl")
+        train_torchrl.parse_args(flags)
     assert exit_.value.code == 2
-    assert f"rwalk-train-torchrl: error: {message}" in capsys.readouterr().err
+    assert f": error: {message}" in capsys.readouterr().err
 
 
 def test_a_dead_worker_stops_the_run_before_the_weights_wait_for_it():

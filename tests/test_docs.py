@@ -153,16 +153,30 @@ print("ok")
     assert table.returncode == 0, table.stdout[-2000:]
 
 
-def test_architecture_new_task_is_one_module_and_one_line(monkeypatch):
+def test_architecture_new_task_is_one_module_and_one_line(monkeypatch, tmp_path):
+    import json
+
     import torch
 
     from rwalk import EnvConfig, ResidualWalkVecEnv
+    from rwalk.runners import play, train
 
     _register(monkeypatch, _architecture()["task"], "task")
     config = EnvConfig(model_path="model/world_flat.xml", settle_steps=5)
     env = ResidualWalkVecEnv(2, config, seed=0, task="stand")
     td = env.step(env.reset().set("action", torch.zeros(2, 12)))
     assert not td["next", "terminated"].any()
+    # rwalk-train's defaults (the robust world, symmetry, the export), at tiny sizes
+    folder = tmp_path / "stand"
+    train.main(["--task", "stand", "--num-envs", "4", "--num-steps-per-env", "4",
+                "--settle-steps", "2", "--max-episode-steps", "20", "--hidden-dims", "8",
+                "--max-iterations", "2", "--log-dir", str(folder)])  # fmt: skip
+    assert json.loads((folder / "config.json").read_text())["preset"]["task"] == "stand"
+    layout = json.loads((folder / "exported" / "policy.json").read_text())
+    assert (folder / "exported" / "policy.onnx").is_file() and "deploy" not in layout
+    rows = play.play(["--checkpoint", str(folder / "model_1.pt"), "--episodes", "2",
+                      "--max-steps", "10", "--settle-steps", "2"])  # fmt: skip
+    assert rows[0].episodes == 2 and rows[0].mean_length == 10
 
 
 def test_adaptive_example_runs():

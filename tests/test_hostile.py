@@ -28,6 +28,7 @@ from rwalk.rl.checkpoints import (
     save_checkpoint,
 )
 from rwalk.rl.config import ConfigError, TrainArgs, load_saved_args
+from rwalk.rl.legacy import from_flags
 
 ROOT = Path(__file__).resolve().parents[1]
 FLAT = "model/world_flat.xml"
@@ -180,7 +181,7 @@ def test_a_config_json_of_other_models_is_a_one_line_error(tmp_path, run_folder)
     folder = tmp_path / "run"
     shutil.copytree(run_folder, folder)
     config = json.loads((folder / "config.json").read_text())
-    config["args"]["hidden_dims"] = [16, 16]
+    config["train"]["hidden_dims"] = [16, 16]
     (folder / "config.json").write_text(json.dumps(config))
     done = cli("rwalk.runners.play", "--checkpoint", str(folder / "model_1.pt"))
     one_line_error(done, "--checkpoint", "does not fit this run's models")
@@ -251,7 +252,7 @@ def test_resume_takes_the_runs_task_and_refuses_contradicting_flags(tmp_path):
     # No --task, no --hidden-dims: the run's own come back (it used to fail on the shapes).
     train.main([*tiny, "--resume", str(folder), "--max-iterations", "2", "--log-dir", str(folder)])
     again = json.loads((folder / "config.json").read_text())
-    assert again["args"]["task"] == "adaptive_gait" and again["args"]["hidden_dims"] == [8]
+    assert again["preset"]["task"] == "adaptive_gait" and again["train"]["hidden_dims"] == [8]
     assert (folder / "model_1.pt").is_file()
     with pytest.raises(SystemExit) as exit_:
         train.main([*tiny, "--resume", str(folder), "--max-iterations", "3",
@@ -259,7 +260,7 @@ def test_resume_takes_the_runs_task_and_refuses_contradicting_flags(tmp_path):
     message = str(exit_.value.code)
     assert "--hidden-dims 8" in message and "not --hidden-dims 16" in message
     assert json.loads((folder / "config.json").read_text()) == again  # nothing overwritten
-    assert saved["args"]["hidden_dims"] == [8]
+    assert saved["train"]["hidden_dims"] == [8]
 
 
 # 8. values that overflow --------------------------------------------------------------------
@@ -358,7 +359,7 @@ def test_the_args_of_a_run_round_trip_through_its_config_json(tmp_path):
                                command_range=(0.05, 0.25), max_minutes=math.inf)  # fmt: skip
     path = tmp_path / "config.json"
     path.write_text(json.dumps({"args": dataclasses.asdict(args)}))
-    assert load_saved_args(path) == args
+    assert load_saved_args(path) == from_flags(args)  # a schema-1 record, migrated
 
 
 # 3. both trainers own their folders ----------------------------------------------------------
@@ -419,8 +420,9 @@ def test_runners_end_input_errors_in_one_line(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_:
         play.main(["--base-gait", "--episodes", "1", "--max-steps", "2", "--settle-steps", "1",
                    "--json", str(tmp_path / "out.json")])  # fmt: skip
-    err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert exit_.value.code == 1 and "error:" in err and "out.json" in err
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and "\n" not in err  # refused before evaluating, one line
+    assert "error: --json" in err and "out.json" in err and "is a folder" in err
     (tmp_path / "bad.json").write_text('{"rows": [{"condition": "x", "policy": 3}]}')
     with pytest.raises(SystemExit) as exit_:
         robustness.main(["--tables", str(tmp_path / "bad.json")])

@@ -30,7 +30,7 @@ def teacher(tmp_path_factory) -> Path:
 
 
 def test_a_teachers_actor_reads_the_privileged_pieces(teacher):
-    args = json.loads((teacher / "config.json").read_text())["args"]
+    args = json.loads((teacher / "config.json").read_text())["train"]
     assert args["teacher"] is True
     actor = load_checkpoint(teacher / "model_1.pt")["actor_state_dict"]
     # 65 + phase 2 + lateral 1 + physics 9 + heights 20
@@ -80,7 +80,7 @@ def test_one_command_trains_the_teacher_then_its_student(tmp_path, capsys):
     assert f"distilling the teacher {folder / 'model_1.pt'}" in out
     assert [it for it, _ in checkpoint_files(folder)] == [0, 1]
     assert [it for it, _ in checkpoint_files(folder / "student")] == [0, 1, 2]
-    student = json.loads((folder / "student" / "config.json").read_text())["args"]
+    student = json.loads((folder / "student" / "config.json").read_text())["train"]
     assert student["distill"] == str(folder) and student["actor"] == "mlp"
     assert not student["teacher"] and student["student_iterations"] == 0
     saved = load_checkpoint(folder / "student" / "model_2.pt")
@@ -136,7 +136,7 @@ def test_a_checkpoint_that_is_no_teacher_of_this_run_is_named(teacher, tmp_path)
     plain = tmp_path / "plain"
     shutil.copytree(teacher, plain)
     config = json.loads((plain / "config.json").read_text())
-    config["args"]["teacher"] = False
+    config["train"]["teacher"] = False
     (plain / "config.json").write_text(json.dumps(config))
     assert "trained without --teacher" in refused("--distill", str(plain))
     assert (

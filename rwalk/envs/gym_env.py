@@ -19,11 +19,11 @@ from rwalk.tasks import AdaptiveGaitConfig, GaitBounds
 from rwalk.tasks.adaptive_gait import ADAPTED
 
 _SPEC_DEFAULTS = {
-    "model_path": "model/world_train.xml",
+    "model_path": EnvConfig.model_path,
     "gait": GaitParameters(),
-    "residual_scale": 0.02,
-    "max_episode_steps": 1000,
-    "settle_steps": 500,
+    "residual_scale": EnvConfig.residual_scale,
+    "max_episode_steps": EnvConfig.max_episode_steps,
+    "settle_steps": EnvConfig.settle_steps,
 }
 
 
@@ -80,11 +80,11 @@ class ResidualWalkEnv(gym.Env):
 
     def __init__(
         self,
-        model_path: str | os.PathLike[str] = "model/world_train.xml",
+        model_path: str | os.PathLike[str] = EnvConfig.model_path,
         gait_params: GaitParameters | None = None,
-        residual_scale: float = 0.02,
-        max_episode_steps: int | None = 1000,
-        settle_steps: int = 500,
+        residual_scale: float = EnvConfig.residual_scale,
+        max_episode_steps: int | None = EnvConfig.max_episode_steps,
+        settle_steps: int = EnvConfig.settle_steps,
         seed: int | None = None,
         *,
         config: EnvConfig | None = None,
@@ -96,7 +96,9 @@ class ResidualWalkEnv(gym.Env):
             "model_path": str(model_path),
             "gait": gait_params if gait_params is not None else GaitParameters(),
             "residual_scale": residual_scale,
-            "max_episode_steps": max_episode_steps if self._truncates else 1000,
+            "max_episode_steps": (
+                max_episode_steps if self._truncates else EnvConfig.max_episode_steps
+            ),
             "settle_steps": settle_steps,
         }
         if config is None:
@@ -272,11 +274,11 @@ class AdaptiveGaitEnv(ResidualWalkEnv):
 
     def __init__(
         self,
-        model_path: str | os.PathLike[str] = "model/world_train.xml",
+        model_path: str | os.PathLike[str] = EnvConfig.model_path,
         gait_params: GaitParameters | None = None,
-        residual_scale: float = 0.02,
-        max_episode_steps: int | None = 1000,
-        settle_steps: int = 500,
+        residual_scale: float = EnvConfig.residual_scale,
+        max_episode_steps: int | None = EnvConfig.max_episode_steps,
+        settle_steps: int = EnvConfig.settle_steps,
         seed: int | None = None,
         *,
         bounds: GaitBounds | None = None,

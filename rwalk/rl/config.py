@@ -1,42 +1,43 @@
-"""The training's configs: the run, and rsl-rl's algorithm and models, as dataclasses.
+"""The training's configs: the preset, the envs, rsl-rl's algorithm and models, the run.
 
-``RunConfig`` says where a training writes and how long it runs; ``TrainConfig``
-holds PPO's settings, the models and what the policy observes, converted to
-rsl-rl's dict at the boundary (``to_rsl_rl``: a fresh dict, since rsl-rl's PPO
-pops keys from the dict it is given). With ``rwalk.presets.TrainingEnv`` they are
-the source of truth of a training: ``rwalk-train``'s flags map one to one onto
-their fields, and ``config.json`` stores them.
+A training is one ``Training``: its ``env`` is the task's whole ``EnvConfig``
+(world, episodes, reward, variations), ``train`` holds PPO's settings, the models
+and what the policy and critic read, ``run`` says where it writes and how long it
+runs, and ``preset`` says which task and world its configs started from
+(``rwalk.presets.training_env``). The command line is this dataclass (tyro: every
+nested field a flag, ``--env.costs.clearance 3000``; ``rwalk.rl.cli``), and a run's
+record, config.json, is this dataclass resolved (``rwalk.rl.record``): play, the
+reports, export, resume and distillation build from it, never from preset code.
 
-``observation_groups`` is the one rule for which pieces the policy and the
-critic read; training, evaluation and export all take it from here.
+``observation_groups`` is the one rule for which pieces the policy and the critic
+read; a training resolves it once (``resolved``) and its record keeps the result.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, TypeVar
 
-from rwalk.cli import (
-    combine,
+from tyro.conf import OmitArgPrefixes
+
+from rwalk.config import MAX_ENVS, MAX_THREADS, EnvConfig
+from rwalk.observations import PRIVILEGED_PIECES, piece_catalog
+from rwalk.presets import SETTLE_POOL_FRACTION, training_env
+from rwalk.rl.distributed import DEFAULT_TIMEOUT_S
+from rwalk.rng import SEED_LIMIT
+from rwalk.tasks.registry import get_task
+from rwalk.validation import (
     flag,
-    from_fields,
     require_at_least,
     require_at_most,
+    require_choice,
     require_in,
     require_positive,
     show_flag,
 )
-from rwalk.config import MAX_THREADS
-from rwalk.observations import PRIVILEGED_PIECES, piece_catalog
-from rwalk.presets import TrainingEnv
-from rwalk.rl.distributed import DEFAULT_TIMEOUT_S
-from rwalk.rng import SEED_LIMIT
-from rwalk.tasks.base import Task
-from rwalk.tasks.registry import get_task
 
 #: The actor's (or student's) models: an MLP, or a recurrent layer before the MLP.
 ACTORS = ("mlp", "gru", "lstm")
@@ -45,23 +46,12 @@ MAX_ITERATIONS = 10**9
 #: Most layers, and most units in a layer, of the actor's and the critic's MLPs.
 MAX_LAYERS = 8
 MAX_WIDTH = 4096
-#: Largest config.json read (a run's is a few KB).
-MAX_CONFIG_BYTES = 1 << 20
-#: Flags of older versions that a saved config.json may hold: dropped when it is read.
-RETIRED_FLAGS = ("curriculum_iterations",)
-
-
-class ConfigError(ValueError):
-    """A run's config.json that cannot be read as its flags; the message names the file
-    and the field."""
-
-
 #: rwalk-train's --logger choices (rsl-rl's writers).
 LOGGERS = ("tensorboard", "wandb")
 
 
 @dataclass(frozen=True)
-class RunConfig:
+class RunSettings:
     """Where a training writes, from what it goes on, and how long it runs."""
 
     log_dir: str = "logs/rwalk"
@@ -85,6 +75,22 @@ class RunConfig:
     threads: int = 0
     """physics and torch threads (0 = all cores; under torchrun or with several collectors,
     per process: 0 = the machine's cores / its processes)"""
+
+    def __post_init__(self) -> None:
+        require_at_least(self, 1, "max_iterations", "save_interval")
+        require_at_least(self, 0, "threads", "seed")
+        require_at_most(self, SEED_LIMIT - 1, "seed")
+        require_at_most(self, MAX_ITERATIONS, "max_iterations", "save_interval")
+        require_at_most(self, MAX_THREADS, "threads")
+        require_positive(self, "max_minutes", finite=False)
+        if not self.log_dir.strip():
+            raise ValueError("--log-dir must name a folder, got ''")
+
+
+@dataclass(frozen=True)
+class RunConfig(RunSettings):
+    """rwalk-train's run: ``RunSettings``, its exports, its process group and its logger."""
+
     export: bool = True
     """export TorchScript and ONNX at the end"""
     dist_timeout: float = DEFAULT_TIMEOUT_S
@@ -99,17 +105,9 @@ class RunConfig:
     """--logger wandb: the W&B run's name (default: the --log-dir folder's name)"""
 
     def __post_init__(self) -> None:
-        require_at_least(self, 1, "max_iterations", "save_interval")
-        require_at_least(self, 0, "threads", "seed")
-        require_at_most(self, SEED_LIMIT - 1, "seed")
-        require_at_most(self, MAX_ITERATIONS, "max_iterations", "save_interval")
-        require_at_most(self, MAX_THREADS, "threads")
+        super().__post_init__()
         require_positive(self, "dist_timeout")
-        require_positive(self, "max_minutes", finite=False)
-        if not self.log_dir.strip():
-            raise ValueError("--log-dir must name a folder, got ''")
-        if self.logger not in LOGGERS:
-            raise ValueError(f"--logger must be one of {', '.join(LOGGERS)}, got {self.logger!r}")
+        require_choice(self, "logger", LOGGERS)
         if self.logger == "wandb" and not self.wandb_project.strip():
             raise ValueError("--wandb-project must name a project, got ''")
 
@@ -144,9 +142,12 @@ class TrainConfig:
     """target KL of the adaptive learning rate"""
     max_grad_norm: float = 1.0
     """gradient clip"""
-    policy_obs: tuple[str, ...] = field(default=(), metadata={"item": str})
-    """observation pieces the policy sees (none: the observation, phase, lateral_offset and
-    the task's command)"""
+    policy_obs: tuple[str, ...] = ()
+    """observation pieces the policy sees (none: the rule of ``observation_groups``, resolved
+    when the run starts: the observation, phase, lateral_offset and the task's command)"""
+    critic_obs: tuple[str, ...] = ()
+    """observation pieces the critic sees (none: the rule of ``observation_groups``: the
+    policy's, and the privileged ones where the world varies)"""
     actor: str = "mlp"
     """the actor's (a student's) model: mlp, or a recurrent gru or lstm before the MLP layers
     (PPO then trains on whole trajectories; the critic is of the same kind)"""
@@ -174,10 +175,8 @@ class TrainConfig:
     """--student-iterations: the student's model (mlp, gru, lstm)"""
 
     def __post_init__(self) -> None:
-        for name in ("actor", "student_actor"):
-            if getattr(self, name) not in ACTORS:
-                raise ValueError(f"{flag(name)} must be one of {', '.join(ACTORS)}, got "
-                                 f"{getattr(self, name)!r}")  # fmt: skip
+        require_choice(self, "actor", ACTORS)
+        require_choice(self, "student_actor", ACTORS)
         require_at_least(self, 1, "rnn_hidden_dim", "gradient_length")
         require_at_least(self, 0, "student_iterations")
         require_at_most(self, MAX_WIDTH, "rnn_hidden_dim")
@@ -272,13 +271,16 @@ class TrainConfig:
 
 
 def mirrored(train) -> bool:
-    """Whether a training (``TrainConfig`` or rwalk-train's flags) augments with mirrors:
+    """Whether a training (its ``TrainConfig``, or the ``Training``) augments with mirrors:
     --symmetry, where rsl-rl allows it (PPO with an MLP actor)."""
+    train = getattr(train, "train", train)
     return train.symmetry and train.actor == "mlp" and not train.distill
 
 
 def symmetry_refusal(train) -> str | None:
-    """Why an explicit --symmetry cannot apply to ``train`` (None: it can)."""
+    """Why an explicit --symmetry cannot apply to ``train`` (its ``TrainConfig``, or the
+    ``Training``; None: it can)."""
+    train = getattr(train, "train", train)
     if not train.symmetry or mirrored(train):
         return None
     if train.distill:
@@ -288,151 +290,227 @@ def symmetry_refusal(train) -> str | None:
             f"models), got --actor {train.actor}")  # fmt: skip
 
 
-def observation_groups(
-    task: Task, env: TrainingEnv, train: TrainConfig | None = None
-) -> dict[str, tuple[str, ...]]:
+@dataclass(frozen=True)
+class Preset:
+    """Where a training's configs start from: its task and world
+    (``rwalk.presets.training_env``). Every other flag then sets one field of them."""
+
+    task: str = "residual_walk"
+    """task: residual_walk or adaptive_gait"""
+    robust: bool = True
+    """train for worlds never seen: per-env terrain levels with their curriculum, physics
+    randomisation, pushes, observation noise and a privileged critic (--no-robust: one rough
+    world, --env.terrain-scale its roughness)"""
+    costs: bool = False
+    """add the gait costs to the reward (--env.costs.*: swing clearance below a target above
+    the ground, feet slipping, servo power; rwalk.rewards.GaitCosts)"""
+    settle_pool_fraction: float = SETTLE_POOL_FRACTION
+    """settled starts kept ready, as a fraction of --num-envs (--env.settle-pool: a count)"""
+
+    def __post_init__(self) -> None:
+        get_task(self.task)  # ValueError listing the known tasks
+        require_in(self, "settle_pool_fraction", 0.0, 1.0, low_open=True)
+
+    def env(self, num_envs: int) -> EnvConfig:
+        """The task's training env for ``num_envs`` envs in this preset's world."""
+        return training_env(self.task, num_envs=num_envs, robust=self.robust, costs=self.costs,
+                            settle_pool_fraction=self.settle_pool_fraction)  # fmt: skip
+
+
+Env = TypeVar("Env", bound=EnvConfig)
+
+
+@dataclass(frozen=True)
+class TrainingBase(Generic[Env]):
+    """What every trainer's training has: the envs' config, the preset it started from
+    and the count of envs (a trainer adds its algorithm as ``train`` and its ``run``)."""
+
+    env: Env
+    """The envs: the task's EnvConfig."""
+    preset: OmitArgPrefixes[Preset] = field(default_factory=Preset)
+    """The task and world the configs started from."""
+    num_envs: int = 1024
+    """parallel envs (under torchrun: per rank; with collectors: per worker)"""
+
+    def __post_init__(self) -> None:
+        require_at_least(self, 1, "num_envs")
+        require_at_most(self, MAX_ENVS, "num_envs")
+        kind = get_task(self.task).config_type
+        if type(self.env) is not kind:
+            raise ValueError(f"the {self.task} task's env is a {kind.__name__}, got a "
+                             f"{type(self.env).__name__}")  # fmt: skip
+
+    @property
+    def task(self) -> str:
+        """The task's registry name."""
+        return self.preset.task
+
+    def env_config(self, threads: int | None = None) -> EnvConfig:
+        """The envs' config, its physics on ``threads`` threads (None: the run's --threads,
+        where set, else ``env.num_threads``)."""
+        threads = self.run.threads if threads is None else threads  # type: ignore[attr-defined]
+        return dataclasses.replace(self.env, num_threads=threads or self.env.num_threads)
+
+    def resolved(self):
+        """This training with every rule written out as its record keeps it (here: as it
+        is; ``Training`` writes out its observation groups)."""
+        return self
+
+
+@dataclass(frozen=True)
+class Training(TrainingBase[Env]):
+    """An rwalk-train run: every field is a command-line flag, checked on creation by the
+    config it belongs to; config.json holds it, resolved (``rwalk.rl.record``)."""
+
+    train: OmitArgPrefixes[TrainConfig] = field(default_factory=TrainConfig)
+    """rsl-rl's algorithm, models and stages."""
+    run: OmitArgPrefixes[RunConfig] = field(default_factory=RunConfig)
+    """Where the run writes and how long it runs."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        frames = self.num_envs * self.train.num_steps_per_env
+        if self.train.num_mini_batches > frames:
+            raise ValueError(
+                f"--num-mini-batches must be <= --num-envs * --num-steps-per-env = {frames}, "
+                f"got {self.train.num_mini_batches}"
+            )
+        task = get_task(self.task)
+        known = piece_catalog(task.pieces(), task.observation)
+        for name in ("policy_obs", "critic_obs"):
+            unknown = [p for p in getattr(self.train, name) if p not in known]
+            if unknown:
+                raise ValueError(f"{flag(name)}: {self.task} has no piece {unknown[0]!r}; "
+                                 f"choose from {tuple(known)}")  # fmt: skip
+
+    def resolved(self) -> Training:
+        """This training with its observation groups written out (``resolved``)."""
+        return resolved(self)
+
+
+def observation_groups(task, env: EnvConfig, train: TrainConfig | None = None
+                       ) -> dict[str, tuple[str, ...]]:  # fmt: skip
     """The pieces of the policy and the critic of a training (the one rule).
 
     The policy reads ``train.policy_obs``, else the spec observation and the task's
-    extra pieces (a robust run's observation counts the torso's x, y from the episode's
-    start: on the terrain-levels map, where it is would tell its level; the piece
-    ``command`` only when the envs draw commands); a teacher's (``train.teacher``) also
-    reads the privileged pieces. The critic reads the policy's pieces, plus the
-    privileged ones (the drawn physics, the ground around the feet) when the training's
-    world varies.
+    extra pieces (on a terrain-levels map its observation counts the torso's x, y from
+    the episode's start: where it is would tell its level; the piece ``command`` only
+    when the envs draw commands); a teacher's (``train.teacher``) also reads the
+    privileged pieces. The critic reads ``train.critic_obs``, else the policy's pieces
+    plus the privileged ones (the drawn physics, the ground around the feet) when the
+    world varies (``EnvConfig.varies``) or the actor is a teacher.
 
     Args:
-        task: the task of the envs the groups are read from (its ``extras`` decide the
-            default pieces).
-        env: the training's envs.
+        task: the task (class or instance) whose pieces the groups are.
+        env: the training's envs (or ``rwalk.presets.TrainingEnv``, an older run's flags).
         train: the training's config (None: the defaults).
     """
+    if hasattr(env, "config") and not isinstance(env, EnvConfig):  # a TrainingEnv
+        env = env.config()
     train = train or TrainConfig()
     policy_obs = train.policy_obs
     if not policy_obs:
-        observation = "observation_from_start" if env.robust else "observation"
-        extras = [name for name in task.extras() if name != "command" or env.command_range]
+        observation = "observation" if env.terrain_levels is None else "observation_from_start"
+        extras = [name for name in task.extras_for(env) if name != "command" or env.command_range]
         policy_obs = (observation, *extras)
-    privileged = PRIVILEGED_PIECES if env.robust or train.teacher else ()
+    privileged = PRIVILEGED_PIECES if env.varies or train.teacher else ()
     if train.teacher:
         policy_obs = (*policy_obs, *(name for name in privileged if name not in policy_obs))
-    critic = (*policy_obs, *(name for name in privileged if name not in policy_obs))
-    return {"policy": tuple(policy_obs), "critic": critic}
+    critic = train.critic_obs or (*policy_obs, *(n for n in privileged if n not in policy_obs))
+    return {"policy": tuple(policy_obs), "critic": tuple(critic)}
 
 
-def _from_saved(cls, saved: dict):
-    """The flags of a run's config.json (``"args"``), checked field by field
-    (``rwalk.cli.from_fields``): flags of older versions (``RETIRED_FLAGS``) are dropped,
-    and a run saved before ``robust`` existed trained without it.
-
-    Raises:
-        ValueError: naming an unknown key or a bad field.
-    """
-    return from_fields(cls, {"robust": False} | saved, retired=RETIRED_FLAGS)
+def resolved(training: Training) -> Training:
+    """``training`` with its groups written out (``observation_groups``): what its record
+    keeps, so that a later change of the rule never changes how the run is read."""
+    groups = observation_groups(get_task(training.task), training.env, training.train)
+    train = dataclasses.replace(training.train, policy_obs=groups["policy"],
+                                critic_obs=groups["critic"])  # fmt: skip
+    return dataclasses.replace(training, train=train)
 
 
-def load_saved_args(path: Path, cls: type | None = None, trainer: str = "rsl_rl"):
-    """The flags a run stored in its config.json (``path``), as data: the file is read
-    only up to MAX_CONFIG_BYTES, parsed as JSON, its "trainer" checked, and each field of
-    "args" checked as a field of ``cls`` (default: ``TrainArgs``, rwalk-train's flags).
-
-    Raises:
-        FileNotFoundError: naming the file.
-        ConfigError: naming the file and what is wrong (size, JSON, another trainer's
-            run, the "args" object, an unknown key or a bad field).
-    """
-    path = Path(path)
-    try:
-        with path.open("rb") as file:
-            data = file.read(MAX_CONFIG_BYTES + 1)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{str(path)!r} not found") from None
-    except OSError as error:
-        raise ConfigError(f"{str(path)!r} cannot be read ({error.strerror})") from None
-    if len(data) > MAX_CONFIG_BYTES:
-        raise ConfigError(f"{str(path)!r} is larger than {MAX_CONFIG_BYTES} bytes: not a run's")
-    try:
-        saved = json.loads(data)
-    except (ValueError, RecursionError) as error:
-        raise ConfigError(f"{str(path)!r} is not JSON ({str(error)[:120]})") from None
-    if not isinstance(saved, dict) or not isinstance(saved.get("args"), dict):
-        raise ConfigError(f'{str(path)!r} has no object "args" of a run\'s flags')
-    written_by = saved.get("trainer", "rsl_rl")  # rwalk-train's from before the key
-    if written_by != trainer:
-        shown = written_by if isinstance(written_by, str) and len(written_by) <= 32 else "?"
-        raise ConfigError(
-            f"{str(path)!r} is the config of a run of the {shown!r} trainer, not of {trainer!r}"
-        )
-    try:
-        if cls is None:
-            return TrainArgs.from_saved(saved["args"])
-        return from_fields(cls, saved["args"], retired=RETIRED_FLAGS)
-    except (ValueError, TypeError) as error:
-        raise ConfigError(f"{str(path)!r}: args: {error}") from None
+def student_training(teacher: Training) -> Training:
+    """The student stage of ``teacher`` (a run with --student-iterations): distil its
+    LOG_DIR's teacher into a --student-actor model in LOG_DIR/student for
+    --student-iterations iterations, in the teacher's world, blind (the teacher's policy
+    pieces but the privileged ones), with the teacher's PPO settings and --overwrite."""
+    blind = tuple(name for name in teacher.train.policy_obs if name not in PRIVILEGED_PIECES)
+    train = dataclasses.replace(
+        teacher.train, teacher=False, distill=teacher.run.log_dir, policy_obs=blind,
+        actor=teacher.train.student_actor, student_iterations=0, symmetry=False, critic_obs=(),
+    )  # fmt: skip
+    run = dataclasses.replace(
+        teacher.run, resume="", max_iterations=teacher.train.student_iterations,
+        log_dir=str(Path(teacher.run.log_dir) / "student"),
+        run_name=f"{teacher.run.run_name or Path(teacher.run.log_dir).name}-student",
+    )  # fmt: skip
+    return resolved(dataclasses.replace(teacher, train=train, run=run))
 
 
-#: Flags that may differ from the run's own on --resume: the run's settings (where it
-#: writes, how long, threads, seeds, logging) and how many envs step. Every other flag
+#: Fields that may differ from the run's own on --resume: the run's settings (where it
+#: writes, how long, threads, seeds, logging) and how many envs step. Every other field
 #: (task, world, algorithm, models, observation pieces) comes from the run's config.json.
-RESUME_MAY_CHANGE = (*(f.name for f in dataclasses.fields(RunConfig)), "num_envs")
+RESUME_MAY_CHANGE = ("run", "num_envs")
 
 
 class ResumeConflict(ValueError):
     """A flag given on --resume that contradicts the resumed run's own."""
 
 
-def restore_run(args, saved, given: frozenset[str] | None, path: Path, config: Path):
-    """``args`` with every flag outside ``RESUME_MAY_CHANGE`` taken from the resumed run's
-    ``saved`` flags (of the same class).
+def leaves(value: Any, prefix: str = "") -> dict[str, Any]:
+    """Every leaf field of a config, by its dotted path (``env.costs.clearance``); a part
+    that is None is one leaf."""
+    if not dataclasses.is_dataclass(value):
+        return {prefix[:-1]: value}
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(value):
+        out |= leaves(getattr(value, f.name), f"{prefix}{f.name}.")
+    return out
+
+
+def flag_of(path: str) -> str:
+    """The flag of a leaf's dotted path: the parts typed ``OmitArgPrefixes`` (preset,
+    train, run) give top-level flags (``train.hidden_dims`` -> ``--hidden-dims``)."""
+    head, _, tail = path.partition(".")
+    return flag(tail if head in ("preset", "train", "run") else path)
+
+
+def resume_conflict(given: Training, saved: Training, path: Path, config: Path) -> None:
+    """Refuse a resumed run's command line that sets a field (outside
+    ``RESUME_MAY_CHANGE``) to another value than its run's own.
 
     Args:
-        given: flags the command line set itself (None: every flag of ``args``).
+        given: what the command line made, parsed from ``saved``'s values.
         path, config: the resumed checkpoint and its run's config.json (for messages).
 
     Raises:
-        ResumeConflict: naming the flag and both values, if ``given`` sets one to another
-            value than the run's.
+        ResumeConflict: naming the flag and both values.
     """
-    changes = {}
-    for f in dataclasses.fields(args):
-        mine, theirs = getattr(args, f.name), getattr(saved, f.name)
-        if f.name in RESUME_MAY_CHANGE or mine == theirs:
+    mine, theirs = leaves(given), leaves(saved)
+    for name, value in mine.items():
+        if name.split(".")[0] in RESUME_MAY_CHANGE or theirs.get(name) == value:
             continue
-        if given is None or f.name in given:
-            raise ResumeConflict(
-                f"--resume {path}: its run trained with {show_flag(f.name, theirs)} (its "
-                f"{config}), not {show_flag(f.name, mine)}; pass {show_flag(f.name, theirs)} "
-                f"to resume it, or leave {flag(f.name)} out (on --resume only the flags "
-                f"{', '.join(map(flag, RESUME_MAY_CHANGE))} may change)"
-            )
-        changes[f.name] = theirs
-    return dataclasses.replace(args, **changes)
-
-
-def _check_across(args) -> None:
-    """Checks that need fields of several configs: the minibatches fit the rollout, the
-    policy's pieces are the task's, and the seeds of every env stay below 2^64."""
-    frames = args.num_envs * args.num_steps_per_env
-    if args.num_mini_batches > frames:
-        raise ValueError(
-            f"--num-mini-batches must be <= --num-envs * --num-steps-per-env = {frames}, "
-            f"got {args.num_mini_batches}"
-        )
-    task = get_task(args.task)
-    known = piece_catalog(task.pieces(), task.observation)
-    unknown = [name for name in args.policy_obs if name not in known]
-    if unknown:
-        raise ValueError(
-            f"--policy-obs: {args.task} has no piece {unknown[0]!r}; choose from {tuple(known)}"
+        option = flag_of(name)[2:]
+        own = show_flag(option, theirs.get(name))
+        raise ResumeConflict(
+            f"--resume {path}: its run trained with {own} (its {config}), not "
+            f"{show_flag(option, value)}; pass {own} to resume it, or leave {flag(option)} out "
+            f"(on --resume only the run's settings and --num-envs may change)"
         )
 
 
-#: rwalk-train's flags: one per field of its three configs (``args.run``, ``args.env``,
-#: ``args.train`` rebuild them); config.json stores them under "args".
-TrainArgs = combine(
-    "Args",
-    {"run": RunConfig, "env": TrainingEnv, "train": TrainConfig},
-    doc="A training run: every field is a command-line flag (--num-envs, ...), checked on "
-    "creation by the config it belongs to (RunConfig, TrainingEnv, TrainConfig).",
-    namespace={"from_saved": classmethod(_from_saved), "check": _check_across},
-)
+#: Older names of this module, now in ``rwalk.rl.legacy`` (schema-1 flags) and
+#: ``rwalk.rl.record`` (reading a run's config.json).
+_MOVED = {
+    "TrainArgs": "rwalk.rl.legacy", "RETIRED_FLAGS": "rwalk.rl.legacy",
+    "ConfigError": "rwalk.rl.record", "MAX_CONFIG_BYTES": "rwalk.rl.record",
+    "load_saved_args": "rwalk.rl.record",
+}  # fmt: skip
+
+
+def __getattr__(name: str):
+    if name in _MOVED:
+        import importlib
+
+        return getattr(importlib.import_module(_MOVED[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -26,16 +26,19 @@ What the ranks exchange (all gloo collectives on CPU tensors):
 Exchanged data is JSON or raw bytes in tensors, never pickles. Every collective
 times out after ``--dist-timeout`` seconds; a rank that dies closes its
 connections, so the others fail at their next collective and torchrun ends the
-group with a report naming the first failure.
+group with a report naming the first failure. A launcher that dies, even by SIGKILL,
+takes its ranks with it (``exit_with_launcher``).
 """
 
 from __future__ import annotations
 
+import ctypes
 import datetime
 import hashlib
 import json
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Mapping
@@ -43,8 +46,34 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import torch
-import torch.distributed as dist
+LAUNCHER_PID = os.getppid()
+"""The process that started this one, read as this module loads: a rank's launcher
+(torchrun's agent), read before torch loads (seconds, in which the launcher may die)."""
+
+
+def _die_with_launcher() -> bool:
+    """Have Linux kill this process (SIGKILL) when LAUNCHER_PID, its parent, dies (prctl's
+    PR_SET_PDEATHSIG), and kill it now if that parent is already gone; False where Linux
+    cannot be asked (another system)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    set_pdeathsig = 1
+    if ctypes.CDLL(None, use_errno=True).prctl(set_pdeathsig, signal.SIGKILL, 0, 0, 0) != 0:
+        return False
+    if os.getppid() != LAUNCHER_PID:  # it died before the call: no signal will come
+        os.kill(os.getpid(), signal.SIGKILL)
+    return True
+
+
+# A rank dies with its launcher from here on, before it spends seconds loading torch
+# (exit_with_launcher).
+if os.environ.get("WORLD_SIZE", "1").strip() not in ("", "0", "1"):
+    _die_with_launcher()
+
+import torch  # noqa: E402
+import torch.distributed as dist  # noqa: E402
+
+from rwalk.threads import cores  # noqa: E402
 
 DEFAULT_TIMEOUT_S = 600.0
 """Seconds a rank waits in a collective for the others (``--dist-timeout``)."""
@@ -128,53 +157,71 @@ def _env_int(env: Mapping[str, str], name: str, default: str | None = None) -> i
         raise GroupError(f"{name} must be an integer, got {value!r}") from None
 
 
-def cores() -> int:
-    """The cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
 def default_threads(group: Group) -> int:
     """Physics threads of a rank when --threads is 0: this machine's cores shared by its
     ranks (never oversubscribed), at least 1."""
     return max(1, cores() // group.local_world_size)
 
 
-#: Seconds between two looks at the launcher; seconds a rank may take to end on its own.
 WATCH_INTERVAL_S = 0.5
-GRACE_S = 10.0
+"""Seconds between two looks at the launcher, where Linux cannot watch it."""
+GRACE_S = 3.0
+"""Seconds a rank whose launcher died may take to end on its own, where Linux cannot
+watch the launcher."""
+_ending = False
+"""Whether this rank is ending: its first SIGTERM was raised, or it left its group."""
+_watching = False
+"""Whether the watchdog thread runs."""
 
 
 def exit_with_launcher() -> None:
     """End this rank when the process that launched it (torchrun's agent) dies, even by
-    SIGKILL: without it the ranks train on in their own sessions, and rank 0 keeps the
-    run folder's lock.
+    SIGKILL and whatever the rank is doing: without it the ranks train on in their own
+    sessions, rank 0 holding the run folder's lock, and join no group again.
 
-    A SIGTERM ends the rank as an exception (``SystemExit``), so that its ``finally``
-    blocks run (rank 0 releases the lock). A watchdog thread compares the parent's pid
-    every WATCH_INTERVAL_S seconds; once the parent is gone (the rank was handed to
-    another parent) it sends that SIGTERM, and ends the process outright if the rank is
-    still there GRACE_S seconds later (stuck in a collective, say). (Not the kernel's
-    ``PR_SET_PDEATHSIG``: it fires when the parent *thread* that started the rank ends.)
+    On Linux, the kernel kills the rank with its launcher (``PR_SET_PDEATHSIG``), asked
+    as this module loads, before the rank loads torch, so a launcher killed in the
+    seconds a rank starts in is caught too; if the launcher died before, the rank
+    ends then. Killed so, rank 0 leaves its lock behind, which the next training in the
+    folder takes over (its pid no longer runs: ``rwalk.rl.checkpoints.run_lock``).
+    Linux sends that signal when the launcher's *thread* that started the rank ends:
+    torchrun starts its ranks from its main thread. Not caught: a launcher that dies in
+    the fraction of a second before this module loads, which leaves the rank waiting in
+    ``join`` for a store that is gone, until --dist-timeout.
+
+    Elsewhere, a watchdog thread compares the parent's pid with LAUNCHER_PID every
+    WATCH_INTERVAL_S seconds; once the launcher is gone it sends the rank a SIGTERM,
+    and ends it outright GRACE_S seconds later.
+
+    A SIGTERM (torchrun ending the group after a rank failed) raises ``SystemExit`` once,
+    so that ``finally`` blocks run (rank 0 releases its lock); later ones, and any after
+    the rank left its group (``leave``), are ignored: they would land in its teardown
+    (an env's ``__del__``) and print a traceback after its one-line error.
     """
-    parent = os.getppid()
-
-    def end(signum, frame):
-        raise SystemExit(f"rank {os.getpid()}: ended (signal {signum}: the launcher is gone "
-                         "or ended the group)")  # fmt: skip
-
-    signal.signal(signal.SIGTERM, end)
+    global _watching
+    signal.signal(signal.SIGTERM, _end)
+    if _watching or _die_with_launcher():
+        return
+    _watching = True
 
     def watch() -> None:
-        while os.getppid() == parent:
+        while os.getppid() == LAUNCHER_PID:
             time.sleep(WATCH_INTERVAL_S)
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(GRACE_S)
         os._exit(1)
 
     threading.Thread(target=watch, name="rwalk-launcher-watch", daemon=True).start()
+
+
+def _end(signum, frame) -> None:
+    """SIGTERM's handler (``exit_with_launcher``)."""
+    global _ending
+    if _ending:
+        return
+    _ending = True
+    raise SystemExit(f"rank {os.getpid()}: ended (signal {signum}: the launcher is gone "
+                     "or ended the group)")  # fmt: skip
 
 
 def join(group: Group, timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
@@ -192,7 +239,10 @@ def join(group: Group, timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
 
 
 def leave() -> None:
-    """Leave the process group, if this process joined one."""
+    """Leave the process group, if this process joined one: the rank is ending, and a
+    SIGTERM no longer interrupts it (``exit_with_launcher``)."""
+    global _ending
+    _ending = True
     if dist.is_initialized():
         dist.destroy_process_group()
 

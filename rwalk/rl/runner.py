@@ -7,10 +7,16 @@ and writes it atomically. It saves the env's own state beside the policy through
 one hook: an env with ``state_dict()`` / ``load_state_dict(state)`` (the rsl-rl
 adapter's: the terrain curriculum's levels) has it written under ``"env_state"``
 at each save and handed back at each load. Under torchrun it joins a gloo group
-on CPU processes (``rwalk.rl.distributed``).
+on CPU processes (``rwalk.rl.distributed``). rsl-rl's console report of each
+iteration is silenced: its "Learning iteration" and ETA count only the ``learn()``
+call, and rwalk-train reports the training's progress itself, once per chunk.
 """
 
 from __future__ import annotations
+
+import contextlib
+import functools
+import io
 
 from rsl_rl.runners import DistillationRunner, OnPolicyRunner
 
@@ -33,6 +39,11 @@ class SafeRunnerMixin:
     Checkpoints carry ``"trainer": "rsl_rl"`` and ``"env_state"`` (rsl-rl's ``alg.load``
     ignores keys it does not know).
     """
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.logger.log = _without_console(self.logger.log)
+        self.alg.update = _with_explained_variance(self.alg)
 
     def _configure_multi_gpu(self) -> None:
         """rsl-rl's multi-GPU setup for CPU processes: join a gloo group (torchrun's
@@ -126,3 +137,40 @@ class SafeDistillationRunner(SafeRunnerMixin, DistillationRunner):
     """rsl-rl's ``DistillationRunner`` with ``SafeRunnerMixin``'s checkpoints and groups:
     ``load(teacher_checkpoint)`` loads a teacher (its actor), a distillation checkpoint
     the student, the teacher and the optimizer."""
+
+
+def _without_console(log):
+    """rsl-rl's ``Logger.log`` (its writer's metrics and a console report) without the
+    console report: a block per iteration headed "Learning iteration <it>/<end of this
+    learn() call>" with an ETA to that end, beside the caller's own progress line."""
+
+    @functools.wraps(log)
+    def log_quietly(*args, **kwargs):
+        with contextlib.redirect_stdout(io.StringIO()):
+            return log(*args, **kwargs)
+
+    return log_quietly
+
+
+def _with_explained_variance(alg):
+    """``alg.update`` whose losses also hold ``explained_variance``: 1 - Var(returns -
+    values) / Var(returns) of the rollout it learns from (how much of the returns the
+    critic predicted; rsl-rl logs it as ``Loss/explained_variance``). A distillation's
+    storage has no values: its update is unchanged."""
+    update = alg.update
+
+    @functools.wraps(update)
+    def updated() -> dict:
+        storage = getattr(alg, "storage", None)
+        values, returns = getattr(storage, "values", None), getattr(storage, "returns", None)
+        explained = None
+        if values is not None and returns is not None:
+            spread = returns.var()
+            explained = float(1.0 - (returns - values).var() / spread) if spread > 0 else 0.0
+        losses = update()
+        if explained is not None:
+            losses["explained_variance"] = explained
+        return losses
+
+    return updated
+

@@ -11,7 +11,7 @@ or ``--collectors K`` workers on one of TorchRL's collector backends.
     --collectors K --backend ray        Collector(backend="ray") -> RayCollector: K Ray actors
                                         (the ``ray`` extra: pip install -e ".[ray]")
 
-The env (``make_env``) is the training's envs (``rwalk.presets.TrainingEnv``: by
+The env (``make_env``) is the training's envs (``TorchRLTraining``'s env: by
 default the robust world) with the policy's and the critic's observation groups of
 the one rule (``rwalk.rl.config.observation_groups``) as the keys ``policy`` (with
 observation noise) and ``critic`` (exact), each normalised (``ObservationNorm``),
@@ -28,7 +28,6 @@ stacked into a batch of shape (K, num_envs, num_steps_per_env).
 
 from __future__ import annotations
 
-import os
 import socket
 from dataclasses import dataclass
 
@@ -38,10 +37,10 @@ from torchrl.collectors import BaseCollector, Collector
 from torchrl.envs import Compose, ObservationNorm, RewardScaling, TransformedEnv
 
 from rwalk.envs.torchrl_env import BatchedEnv
-from rwalk.presets import TrainingEnv
 from rwalk.rl.checkpoints import RunSetupError
 from rwalk.rl.config import observation_groups
-from rwalk.rl.torchrl_config import TorchRLConfig
+from rwalk.rl.torchrl_config import TorchRLConfig, TorchRLTraining
+from rwalk.threads import cores
 
 GROUPS = ("policy", "critic")
 """The env's keys the actor (``policy``) and the critic (``critic``) read."""
@@ -52,17 +51,14 @@ Norms = dict[str, tuple[Tensor, Tensor]]
 """(loc, scale) of each normalised key: ``(x - loc) / scale``. Shapes: (D,), (D,)."""
 
 
-def available_cores() -> int:
-    """CPU cores this process may run on (its affinity mask where the OS has one)."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
+#: Older name of ``rwalk.threads.cores``.
+available_cores = cores
 
 
 def worker_threads(collectors: int, threads: int) -> int:
     """Physics and torch threads of each of ``collectors`` workers: ``threads`` when
     given (> 0), else an equal share of the cores, at least 1."""
-    return threads if threads > 0 else max(1, available_cores() // collectors)
+    return threads if threads > 0 else max(1, cores() // collectors)
 
 
 def measure_norms(env: BatchedEnv, keys: tuple[str, ...] = GROUPS) -> Norms:
@@ -78,7 +74,7 @@ def measure_norms(env: BatchedEnv, keys: tuple[str, ...] = GROUPS) -> Norms:
 
 
 def make_env(
-    setup: TrainingEnv,
+    setup: TorchRLTraining,
     reward_scale: float,
     *,
     seed: int,
@@ -98,10 +94,10 @@ def make_env(
     """
     base = BatchedEnv(
         setup.num_envs,
-        setup.config(threads),
+        setup.env_config(threads),
         seed=seed,
         task=setup.task,
-        groups=lambda task: observation_groups(task, setup),
+        groups=lambda task: observation_groups(task, setup.env),
     )
     norms = measure_norms(base) if norms is None else norms
     normalise = [
@@ -130,7 +126,7 @@ class WorkerEnv:
     another worker's, as rwalk-train's ranks. ``threads`` physics threads.
     """
 
-    setup: TrainingEnv
+    setup: TorchRLTraining
     """The envs each worker steps (``num_envs`` of them)."""
     reward_scale: float
     """PPO sees ``reward * reward_scale``."""
@@ -146,7 +142,7 @@ class WorkerEnv:
     @property
     def seed(self) -> int:
         return self.first_seed + self.worker * (
-            self.setup.num_envs + self.setup.config().settle_pool
+            self.setup.num_envs + self.setup.env.settle_pool
         )
 
     def __call__(self) -> TransformedEnv:
@@ -209,7 +205,7 @@ def _free_port() -> int:
 def make_collector(
     env: TransformedEnv,
     policy: torch.nn.Module,
-    setup: TrainingEnv,
+    setup: TorchRLTraining,
     ppo: TorchRLConfig,
     *,
     seed: int,

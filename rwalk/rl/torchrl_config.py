@@ -9,9 +9,12 @@ which both read it, and free of torchrl imports.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-from rwalk.cli import require_at_least, require_in, require_positive
+from tyro.conf import OmitArgPrefixes
+
+from rwalk.rl.config import Env, RunSettings, TrainingBase
+from rwalk.validation import require_at_least, require_in, require_positive
 
 BACKENDS = ("process", "ray", "distributed")
 """Values of ``--backend``."""
@@ -85,3 +88,22 @@ class TorchRLConfig:
             raise ValueError(
                 f"--num-mini-batches must be <= {product} = {frames}, got {self.num_mini_batches}"
             )
+
+
+@dataclass(frozen=True)
+class TorchRLTraining(TrainingBase[Env]):
+    """An rwalk-train-torchrl run: the envs as rwalk-train's, TorchRL's PPO and
+    collectors, and the run (every field a flag; config.json holds it)."""
+
+    num_envs: int = 256
+    """parallel envs (with collectors: per worker)"""
+    train: OmitArgPrefixes[TorchRLConfig] = field(default_factory=TorchRLConfig)
+    """TorchRL's PPO, models and collectors."""
+    run: OmitArgPrefixes[RunSettings] = field(
+        default_factory=lambda: RunSettings(log_dir="logs/torchrl", max_iterations=50)
+    )
+    """Where the run writes and how long it runs."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.train.check_batch(self.num_envs)  # a minibatch holds a frame

@@ -1,15 +1,15 @@
 """PPO built from TorchRL's own parts on the batched env: the TorchRL trainer.
 
-``train(run, setup, ppo)`` runs what ``rwalk-train-torchrl`` asks for: a
-collector (``rwalk.rl.torchrl_collect``) steps the training's envs
-(``rwalk.presets.TrainingEnv``, by default the robust world, as ``rwalk-train``'s);
+``train(args)`` runs what ``rwalk-train-torchrl`` asks for (a
+``TorchRLTraining``): a collector (``rwalk.rl.torchrl_collect``) steps the
+training's envs (by default the robust world, as ``rwalk-train``'s);
 GAE computes advantages; ClipPPOLoss trains a TanhNormal actor on the key
 ``policy`` (the policy's observation group, with observation noise) and a value
 network on ``critic`` (the critic's group: in the robust world with the privileged
 pieces), each normalised, on minibatches from a replay buffer.
 
 Writes to ``run.log_dir`` under its lock (``rwalk.rl.checkpoints.run_lock``):
-config.json (``{"trainer": "torchrl", "args", "env"}``), and checkpoints
+config.json (its record, ``"trainer": "torchrl"``), and checkpoints
 ``torchrl_<n>.pt`` (the state after <n> iterations, every ``run.save_interval``, at
 the end and when ``run.max_minutes`` is spent; marked ``"trainer": "torchrl"``),
 atomically. Prints one progress line per iteration (with that iteration's
@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -40,7 +39,6 @@ from rwalk.constants import OBS_LINVEL
 from rwalk.rl.checkpoints import (
     CheckpointError,
     RunSetupError,
-    atomic_write_text,
     checked_iteration,
     claim_log_dir,
     load_checkpoint,
@@ -50,9 +48,11 @@ from rwalk.rl.checkpoints import (
     run_lock,
     save_checkpoint,
 )
-from rwalk.rl.config import RunConfig, load_saved_args, restore_run
+from rwalk.rl.config import RunSettings, resume_conflict
+from rwalk.rl.legacy import as_training
+from rwalk.rl.record import read_record, write_record
 from rwalk.rl.torchrl_collect import check_workers, make_collector, make_env, require_backend
-from rwalk.rl.torchrl_config import TorchRLConfig
+from rwalk.rl.torchrl_config import TorchRLConfig, TorchRLTraining
 
 __all__ = ["TRAINER", "make_modules", "train"]
 
@@ -111,10 +111,11 @@ def check_torchrl(loaded: dict[str, Any], path) -> dict[str, Any]:
     return loaded
 
 
-def resume_point(args, given: frozenset[str] | None = None):
+def resume_point(args: TorchRLTraining):
     """The torchrl checkpoint --resume names (a file, or a folder's newest that loads), its
-    contents, and the flags to train on (``args`` with the run's own task, world and
-    algorithm from its config.json: ``rwalk.rl.config.restore_run``).
+    contents, and the training to go on with (the run's own record, with this command's
+    run settings and --num-envs; a field of ``args`` that differs from the record's is
+    refused: ``rwalk.rl.config.resume_conflict``).
 
     Returns:
         (path, contents, args), or None without --resume.
@@ -124,34 +125,37 @@ def resume_point(args, given: frozenset[str] | None = None):
             folder or flag.
         RunSetupError: if the checkpoint leaves nothing to train.
     """
-    if not args.resume:
+    run = args.run
+    if not run.resume:
         return None
-    if Path(args.resume).is_dir():
-        path, state = newest_checkpoint(args.resume, trainer=TRAINER, check=check_torchrl)
+    if Path(run.resume).is_dir():
+        path, state = newest_checkpoint(run.resume, trainer=TRAINER, check=check_torchrl)
     else:
-        path = Path(args.resume)
+        path = Path(run.resume)
         state = check_torchrl(load_checkpoint(path), path)
     done = state["iteration"]
-    if done >= args.max_iterations:
+    if done >= run.max_iterations:
         raise RunSetupError(
             f"--resume {path} holds {done} iterations, so --max-iterations "
-            f"{args.max_iterations} leaves nothing to train; pass --max-iterations "
+            f"{run.max_iterations} leaves nothing to train; pass --max-iterations "
             f"{done + 1} or more"
         )
     config = path.parent / "config.json"
     if config.is_file():
-        args = restore_run(args, load_saved_args(config, type(args), TRAINER), given, path, config)
+        record = read_record(config, TRAINER, TorchRLTraining)
+        resume_conflict(args, record, path, config)
+        args = dataclasses.replace(record, run=run, num_envs=args.num_envs)
     return path, state, args
 
 
 def train(args, given: frozenset[str] | None = None) -> Path:
-    """Run the training ``args`` asks for (rwalk-train-torchrl's flags: ``args.run``,
-    ``args.env``, ``args.train``); returns the last checkpoint's path.
+    """Run the training ``args`` asks for (a ``TorchRLTraining``, or its schema-1 flags);
+    returns the last checkpoint's path.
 
     The run folder follows rwalk-train's rule: its lock, and another run's checkpoints
     (of either trainer) refused unless --resume or --overwrite. --resume goes on from a
-    torchrl checkpoint: models, optimizer and normalisations, with the run's own flags
-    (``given``: the ones the command line set itself; see ``resume_point``).
+    torchrl checkpoint: models, optimizer and normalisations, with the run's own record
+    (``given``: unused, kept for older callers; see ``resume_point``).
 
     Raises:
         FileNotFoundError, CheckpointError, ConfigError, ResumeConflict, RunSetupError:
@@ -159,21 +163,23 @@ def train(args, given: frozenset[str] | None = None) -> Path:
             or holding another run, a backend's missing extra).
         WorkerDied: a collector worker exited.
     """
+    args = as_training(args)
     clock = time.perf_counter()  # the time budget counts from here, env building included
     require_backend(args.train.backend)  # before anything is written
-    log_dir = Path(args.log_dir)
-    resume = resume_point(args, given)
+    log_dir = Path(args.run.log_dir)
+    resume = resume_point(args)
     if resume is not None:
         args = resume[2]
+    run = args.run
     with run_lock(log_dir):  # one run writes to a folder at a time
         claimed = resume and (resume[0], resume[1]["iteration"])
-        claim_log_dir(log_dir, claimed, Path(args.resume).is_dir() if args.resume else False,
-                      args.overwrite)  # fmt: skip
+        claim_log_dir(log_dir, claimed, Path(run.resume).is_dir() if run.resume else False,
+                      run.overwrite)  # fmt: skip
         return _train(args, resume and resume[1], clock)
 
 
-def _train(args, state: dict[str, Any] | None, clock: float) -> Path:
-    run, setup, ppo = args.run, args.env, args.train
+def _train(args: TorchRLTraining, state: dict[str, Any] | None, clock: float) -> Path:
+    run, setup, ppo = args.run, args, args.train
     log_dir = Path(run.log_dir)
     torch.manual_seed(run.seed)
     norms = None
@@ -182,9 +188,7 @@ def _train(args, state: dict[str, Any] | None, clock: float) -> Path:
                  for key, saved in (("policy", "obs_norm"), ("critic", "critic_norm"))}  # fmt: skip
     # With several collectors this env only gives the specs and the normalisation.
     env = make_env(setup, ppo.reward_scale, seed=run.seed, threads=run.threads, norms=norms)
-    config = {"trainer": TRAINER, "args": dataclasses.asdict(args),
-              "env": dataclasses.asdict(env.base_env.config)}  # fmt: skip
-    atomic_write_text(log_dir / "config.json", json.dumps(config, indent=2))
+    write_record(log_dir / "config.json", args, TRAINER)
     actor, critic = make_modules(ppo, env)
     first = 0
     if state is not None:
@@ -193,10 +197,10 @@ def _train(args, state: dict[str, Any] | None, clock: float) -> Path:
             critic.load_state_dict(state["critic"])
         except (RuntimeError, KeyError) as error:
             raise CheckpointError(
-                f"checkpoint {str(args.resume)!r} does not fit this run's models: {quote(error)}"
+                f"checkpoint {str(run.resume)!r} does not fit this run's models: {quote(error)}"
             ) from None
         first = state["iteration"]
-        print(f"[torchrl] resumed after iteration {first} from {args.resume}")
+        print(f"[torchrl] resumed after iteration {first} from {run.resume}")
     norms = {t.in_keys[0]: t.state_dict() for t in env.transform if isinstance(t, ObservationNorm)}
     kept = {  # what every checkpoint holds beside the modules
         "obs_norm": norms["policy"],  # the actor's input normalisation
@@ -222,7 +226,7 @@ def _train(args, state: dict[str, Any] | None, clock: float) -> Path:
 
 
 def _learn(
-    run: RunConfig,
+    run: RunSettings,
     ppo: TorchRLConfig,
     frames: int,
     collector: BaseCollector,

@@ -1,7 +1,8 @@
 """A training with rsl-rl's PPO on the batched env: one process, or a torchrun group.
 
-``train(args)`` runs what ``rwalk-train`` asks for (``args``: the flags of
-``rwalk.rl.config.TrainArgs``). Rank 0 checks ``--resume``, takes the run
+``train(args)`` runs what ``rwalk-train`` asks for (``args``: a
+``rwalk.rl.config.Training``; schema-1 flags, ``TrainArgs``, are migrated). Rank 0
+checks ``--resume``, takes the run
 folder's lock and claims the folder (``rwalk.rl.checkpoints``); every rank builds
 its own envs, with its own seeds and threads (``rank_args``), and steps them;
 rsl-rl's data-parallel PPO averages the gradients over the gloo group
@@ -15,7 +16,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import importlib.metadata
-import json
 import os
 import time
 from pathlib import Path
@@ -25,7 +25,6 @@ import mujoco
 import numpy as np
 import torch
 
-from rwalk.cli import flag, show_flag
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.export import export_policy
 from rwalk.progress import Progress
@@ -34,7 +33,6 @@ from rwalk.rl.checkpoints import (
     TRAINER,
     CheckpointError,
     RunSetupError,
-    atomic_write_text,
     check_rsl_rl,
     claim_log_dir,
     load_checkpoint,
@@ -42,16 +40,21 @@ from rwalk.rl.checkpoints import (
     run_lock,
 )
 from rwalk.rl.config import (
-    ConfigError,
     ResumeConflict,
-    load_saved_args,
+    RunConfig,
+    Training,
+    flag_of,
+    leaves,
     mirrored,
-    observation_groups,
-    restore_run,
+    resume_conflict,
+    student_training,
 )
+from rwalk.rl.legacy import as_training
+from rwalk.rl.record import ConfigError, decode_training, read_record, record_of, write_record
 from rwalk.rl.rsl_rl_env import RslRlVecEnv
 from rwalk.rl.runner import SafeDistillationRunner, SafeRunner
 from rwalk.starts import SettleError
+from rwalk.validation import show_flag
 
 PER_RANK_FLAGS = ("threads",)
 """Flags the ranks of one training may set differently: a machine's own resources."""
@@ -65,34 +68,26 @@ class Teacher(NamedTuple):
     """The frozen teacher of a distillation (--distill)."""
 
     path: Path
-    args: Any
-    """Its run's flags (``TrainArgs``)."""
+    args: Training
+    """Its run's record."""
 
 
 def make_env(args, teacher: Teacher | None = None) -> RslRlVecEnv:
-    """The training's envs for rsl-rl, with the groups of the one rule
-    (``rwalk.rl.config.observation_groups``): the policy's and the critic's, or for a
-    distillation the student's (``policy``) and the teacher's."""
-    vec = BatchedEnv(args.num_envs, args.env.config(args.threads), seed=args.seed, task=args.task)
+    """The training's envs for rsl-rl (``args``: a ``Training``, or schema-1 flags), with
+    its record's groups: the policy's and the critic's, or for a distillation the
+    student's (``policy``) and the teacher's own policy group."""
+    args = as_training(args).resolved()
+    vec = BatchedEnv(args.num_envs, args.env_config(), seed=args.run.seed, task=args.task)
     vec.core.settle_progress = Progress("settling starts", "physics steps")
-    groups = observation_groups(vec.core.task, args.env, args.train)
+    train = args.train
     if teacher is not None:  # the teacher acts on its own policy group
-        teacher_obs = observation_groups(vec.core.task, teacher.args.env, teacher.args.train)
-        env = RslRlVecEnv(
-            vec,
-            policy_obs=groups["policy"],
-            critic_obs=(),
-            reward_scale=args.reward_scale,
-            teacher_obs=teacher_obs["policy"],
-        )
+        env = RslRlVecEnv(vec, policy_obs=train.policy_obs, critic_obs=(),
+                          reward_scale=train.reward_scale,
+                          teacher_obs=teacher.args.train.policy_obs)  # fmt: skip
     else:
-        env = RslRlVecEnv(
-            vec,
-            policy_obs=groups["policy"],
-            critic_obs=groups["critic"],
-            reward_scale=args.reward_scale,
-        )
-    if mirrored(args):  # every piece of every group mirrors (ValueError naming one that does not)
+        env = RslRlVecEnv(vec, policy_obs=train.policy_obs, critic_obs=train.critic_obs,
+                          reward_scale=train.reward_scale)  # fmt: skip
+    if mirrored(train):  # every piece of every group mirrors (ValueError naming one that does not)
         for group in env.groups:
             env.mirror(group)
         env.action_mirror()
@@ -100,13 +95,14 @@ def make_env(args, teacher: Teacher | None = None) -> RslRlVecEnv:
 
 
 def rsl_rl_config(args, teacher: Teacher | None = None) -> dict[str, Any]:
-    """rsl-rl-lib 5.x's training config of ``args`` (a fresh dict): PPO, or a distillation
-    of ``teacher``, with its writer (--logger)."""
-    config = args.train.to_rsl_rl(args.save_interval, teacher and teacher.args.train)
-    if args.logger == "wandb":
+    """rsl-rl-lib 5.x's training config of ``args`` (a ``Training``, or schema-1 flags; a
+    fresh dict): PPO, or a distillation of ``teacher``, with its writer (--logger)."""
+    args = as_training(args)
+    config = args.train.to_rsl_rl(args.run.save_interval, teacher and teacher.args.train)
+    if args.run.logger == "wandb":
         config["logger"] = {
             "class_name": "rwalk.rl.wandb_writer:WandbWriter",
-            "project_name": args.wandb_project, "run_name": args.run_name,
+            "project_name": args.run.wandb_project, "run_name": args.run.run_name,
         }  # fmt: skip
     return config
 
@@ -120,33 +116,44 @@ def teacher_of(args) -> Teacher | None:
         RunSetupError: naming the flag and both values, for a checkpoint that is no teacher
             of this run (a student, no --teacher, another task, world or commands).
     """
-    if not args.distill:
+    distill = args.train.distill
+    if not distill:
         return None
-    if Path(args.distill).is_dir():  # its newest checkpoint that loads
-        path, state = newest_checkpoint(args.distill)
+    if Path(distill).is_dir():  # its newest checkpoint that loads
+        path, state = newest_checkpoint(distill)
     else:
-        path = Path(args.distill)
+        path = Path(distill)
         state = check_rsl_rl(load_checkpoint(path), path)
     if "actor_state_dict" not in state:
         raise RunSetupError(f"--distill {path}: a distilled student, not a teacher trained "
                             "with --teacher")  # fmt: skip
+    if path.parent.resolve() == Path(args.run.log_dir).resolve():
+        raise RunSetupError(f"--distill {path}: the teacher's run is --log-dir "
+                            f"{args.run.log_dir}; the student would write over it: choose "
+                            "another --log-dir")  # fmt: skip
     config = path.parent / "config.json"
     if not config.is_file():
         raise FileNotFoundError(f"--distill {path}: its run's config.json is not beside it")
-    teacher = load_saved_args(config)
-    if not teacher.teacher:
+    teacher = read_record(config)
+    if not teacher.train.teacher:
         raise RunSetupError(
             f"--distill {path}: its run trained without --teacher, so its actor reads no "
             "privileged pieces; train a teacher with rwalk-train --teacher"
         )
-    for name in ("task", "robust", "command_range"):
-        if getattr(teacher, name) != getattr(args, name):
+    sides = {"--task": lambda t: t.task, "--robust": lambda t: t.env.varies,
+             "--command-range": lambda t: t.env.command_range}  # fmt: skip
+    for name, side in sides.items():
+        if side(teacher) != side(args):
             raise RunSetupError(
-                f"--distill {path}: its teacher trained with "
-                f"{show_flag(name, getattr(teacher, name))}, this student with "
-                f"{show_flag(name, getattr(args, name))}: a teacher teaches its own task and world"
+                f"--distill {path}: its teacher trained with {shown(name, side(teacher))}, this "
+                f"student with {shown(name, side(args))}: a teacher teaches its own task and world"
             )
     return Teacher(path, teacher)
+
+
+def shown(option: str, value: Any) -> str:
+    """A flag and its value as typed (``--no-robust``, ``--task adaptive_gait``)."""
+    return show_flag(option[2:], value)
 
 
 def start_as_base_gait(runner) -> None:
@@ -159,43 +166,49 @@ def start_as_base_gait(runner) -> None:
         last.bias.zero_()
 
 
-def resume_point(args, given: frozenset[str] | None = None):
+def resume_point(args: Training):
     """The checkpoint --resume names (a file, or a folder's newest that loads), its
-    iteration, and the flags to train on: ``args`` with the run's own task, world and
-    models (``restore_run``; from its config.json where there is one).
+    iteration, and the training to go on with: the run's own record (from its
+    config.json where there is one) with this command's run settings and --num-envs.
 
     Returns:
-        (path, iteration, args), or None without --resume.
+        (path, iteration, training), or None without --resume.
 
     Raises:
         FileNotFoundError, CheckpointError, ConfigError: naming the file or folder.
-        RunSetupError: if the checkpoint's iteration leaves nothing to train, or a flag
-            contradicts the run's.
+        RunSetupError: if the checkpoint's iteration leaves nothing to train.
+        ResumeConflict: naming the flag and both values, for a field of ``args`` (outside
+            the run's settings and --num-envs) that differs from the run's.
     """
-    if not args.resume:
+    run = args.run
+    if not run.resume:
         return None
-    if Path(args.resume).is_dir():
-        path, state = newest_checkpoint(args.resume)
+    if Path(run.resume).is_dir():
+        path, state = newest_checkpoint(run.resume)
     else:
-        path = Path(args.resume)
+        path = Path(run.resume)
         state = check_rsl_rl(load_checkpoint(path), path)
     iteration = state["iter"]
-    if iteration + 1 >= args.max_iterations:
+    if iteration + 1 >= run.max_iterations:
         raise RunSetupError(
             f"--resume {path} holds iteration {iteration}, so --max-iterations "
-            f"{args.max_iterations} leaves nothing to train (iterations count from 0); "
+            f"{run.max_iterations} leaves nothing to train (iterations count from 0); "
             f"pass --max-iterations {iteration + 2} or more"
         )
     saved = path.parent / "config.json"
     if saved.is_file():
-        args = restore_run(args, load_saved_args(saved), given, path, saved)
+        record = read_record(saved)
+        resume_conflict(args, record, path, saved)
+        args = dataclasses.replace(record, run=run, num_envs=args.num_envs)
     return path, iteration, args
 
 
-def run_settings(args) -> dict[str, Any]:
-    """What every rank of a training must share: its flags (but ``PER_RANK_FLAGS``) and the
-    versions of the libraries that compute (JSON-able; keys are the flags and package names)."""
-    flags = {flag(k): v for k, v in dataclasses.asdict(args).items() if k not in PER_RANK_FLAGS}
+def run_settings(args: Training) -> dict[str, Any]:
+    """What every rank of a training must share: its record (but ``PER_RANK_FLAGS``) and
+    the versions of the libraries that compute (JSON-able; keys are the fields' dotted
+    paths and package names)."""
+    flags = {flag_of(path): value for path, value in leaves(args).items()
+             if path not in (f"run.{name}" for name in PER_RANK_FLAGS)}  # fmt: skip
     versions = {
         "torch": torch.__version__,
         "rsl-rl-lib": importlib.metadata.version("rsl-rl-lib"),
@@ -205,29 +218,32 @@ def run_settings(args) -> dict[str, Any]:
     return flags | versions
 
 
-def rank_args(args, group: distributed.Group):
-    """The flags of this rank's envs. One process: ``args``. Rank r of a group: seed
-    ``args.seed + r * (num_envs + pool)``, so that its envs and settled-start pool entries
+def rank_args(args: Training, group: distributed.Group) -> Training:
+    """The training of this rank's envs. One process: ``args``. Rank r of a group: seed
+    ``seed + r * (num_envs + pool)``, so that its envs and settled-start pool entries
     (keyed seed + i, then seed + num_envs + j; ``rwalk.starts``) share no key with another
     rank's; --threads 0 becomes the machine's cores divided among its ranks."""
     if not group.distributed:
         return args
-    stride = args.num_envs + args.env.config().settle_pool
-    threads = args.threads or distributed.default_threads(group)
-    return dataclasses.replace(args, seed=args.seed + group.rank * stride, threads=threads)
+    stride = args.num_envs + args.env.settle_pool
+    run = args.run
+    threads = run.threads or distributed.default_threads(group)
+    mine = dataclasses.replace(run, seed=run.seed + group.rank * stride, threads=threads)
+    return dataclasses.replace(args, run=mine)
 
 
 def train(args, given: frozenset[str] | None = None) -> Path:
-    """Run the training; returns the last checkpoint's path.
+    """Run the training (``args``: a ``Training``, or schema-1 flags); returns the last
+    checkpoint's path.
 
     Under torchrun (WORLD_SIZE > 1) every rank runs this and joins the gloo group
     first, and ends when its launcher dies (``distributed.exit_with_launcher``); a
-    single process sets nothing up.
+    single process sets nothing up. With --resume, a field that differs from the run's
+    own record is refused (``rwalk.rl.config.resume_conflict``; ``rwalk-train`` parses
+    its flags from that record, so only the flags typed can differ).
 
     Args:
-        given: the flags the command line set itself; with --resume the others come
-            from the run's config.json (``restore_run``; None: every flag is as given,
-            and one that contradicts the run's is refused).
+        given: unused (older callers passed the flags the command line set).
 
     Raises:
         FileNotFoundError, CheckpointError, RunSetupError: before anything is
@@ -238,32 +254,20 @@ def train(args, given: frozenset[str] | None = None) -> Path:
         RuntimeError: under torchrun, another rank died or hung past --dist-timeout
             (``distributed.is_group_failure``).
     """
+    args = as_training(args).resolved()
     clock = time.perf_counter()  # the wall-time budget counts from here, env building included
     group = distributed.Group.from_env()
     if group.distributed:
         distributed.exit_with_launcher()
-    distributed.join(group, args.dist_timeout)
+    distributed.join(group, args.run.dist_timeout)
     try:
         distributed.check_same_settings(group, run_settings(args))
-        checkpoint, args = _train(args, given, group, clock)
-        if args.student_iterations:
-            checkpoint, _ = _train(student_args(args), None, group, time.perf_counter())
+        checkpoint, args = _train(args, group, clock)
+        if args.train.student_iterations:
+            checkpoint, _ = _train(student_training(args), group, time.perf_counter())
         return checkpoint
     finally:
         distributed.leave()
-
-
-def student_args(teacher):
-    """The flags of the student stage of ``teacher`` (a run with --student-iterations):
-    distil LOG_DIR's teacher into a --student-actor model in LOG_DIR/student, for
-    --student-iterations iterations, with the teacher's world, PPO settings and
-    --overwrite."""
-    return dataclasses.replace(
-        teacher, teacher=False, distill=teacher.log_dir, actor=teacher.student_actor,
-        student_iterations=0, symmetry=False, resume="", max_iterations=teacher.student_iterations,
-        log_dir=str(Path(teacher.log_dir) / "student"),
-        run_name=f"{teacher.run_name or Path(teacher.log_dir).name}-student",
-    )  # fmt: skip
 
 
 class Setup(NamedTuple):
@@ -281,35 +285,36 @@ class Setup(NamedTuple):
     """Its checkpoint's bytes, read by rank 0 (None in a single process)."""
 
 
-def _claim_run(args, given, group: distributed.Group, stack: contextlib.ExitStack) -> Setup:
+def _claim_run(args: Training, group: distributed.Group, stack: contextlib.ExitStack) -> Setup:
     """Rank 0 checks --resume and --distill, takes the run folder's lock (held until
     ``stack`` closes) and claims the folder; every rank gets rank 0's setup, or its error."""
     resume, teacher, failure = None, None, None
     if group.main:
         try:
-            resume = resume_point(args, given)
+            resume = resume_point(args)
             if resume is not None:
                 args = resume[2]
             teacher = teacher_of(args)
-            if args.logger == "wandb":
+            run = args.run
+            if run.logger == "wandb":
                 from rwalk.rl import wandb_writer
 
                 if not wandb_writer.available():
                     raise RunSetupError(wandb_writer.MISSING)
-            log_dir = Path(args.log_dir)
+            log_dir = Path(run.log_dir)
             stack.enter_context(run_lock(log_dir))
             claim_log_dir(log_dir, resume and resume[:2],
-                          Path(args.resume).is_dir() if args.resume else False,
-                          args.overwrite)  # fmt: skip
+                          Path(run.resume).is_dir() if run.resume else False,
+                          run.overwrite)  # fmt: skip
         except Exception as error:  # the other ranks wait to hear of it
             failure = error
     distributed.raise_if_failed(group, failure, SETUP_ERRORS)
     if not group.distributed:
         return Setup(args, resume and resume[:2], None, teacher, None)
     sent = {
-        "args": dataclasses.asdict(args),
+        "args": record_of(args),
         "resume": resume and [str(resume[0]), resume[1]],
-        "teacher": teacher and [str(teacher.path), dataclasses.asdict(teacher.args)],
+        "teacher": teacher and [str(teacher.path), record_of(teacher.args)],
     }
     shared = distributed.broadcast_json(group, sent if group.main else None)
     files = []
@@ -317,32 +322,38 @@ def _claim_run(args, given, group: distributed.Group, stack: contextlib.ExitStac
         data = found[0].read_bytes() if group.main and found else None
         files.append(distributed.broadcast_bytes(group, data) if shared[key] else None)
     return Setup(
-        type(args).from_saved(shared["args"]),
+        _received(shared["args"]),
         shared["resume"] and (Path(shared["resume"][0]), int(shared["resume"][1])),
         files[0],
         shared["teacher"] and Teacher(Path(shared["teacher"][0]),
-                                      type(args).from_saved(shared["teacher"][1])),
+                                      _received(shared["teacher"][1])),
         files[1],
     )  # fmt: skip
 
 
-def _train(args, given, group: distributed.Group, clock: float) -> tuple[Path, Any]:
-    """One run (a stage): returns its last checkpoint and the flags it trained on."""
+def _received(record: dict) -> Training:
+    """A training from rank 0's record, broadcast as JSON."""
+    return decode_training(Training, {k: v for k, v in record.items()
+                                      if k not in ("schema", "trainer")})  # fmt: skip
+
+
+def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path, Training]:
+    """One run (a stage): returns its last checkpoint and the training it ran."""
     say = print if group.main else lambda *_, **__: None  # rank 0 speaks for the group
-    log_dir = Path(args.log_dir)
     with contextlib.ExitStack() as stack:  # rank 0 holds the lock until the run ends
-        setup = _claim_run(args, given, group, stack)
-        own = {name: getattr(args, name) for name in PER_RANK_FLAGS}  # not rank 0's
-        args = dataclasses.replace(setup.args, **own)
+        setup = _claim_run(args, group, stack)
+        own = {name: getattr(args.run, name) for name in PER_RANK_FLAGS}  # not rank 0's
+        args = dataclasses.replace(setup.args, run=dataclasses.replace(setup.args.run, **own))
+        log_dir = Path(args.run.log_dir)
         resume, teacher = setup.resume, setup.teacher
         mine = rank_args(args, group)
-        torch.manual_seed(args.seed + group.rank)
-        if mine.threads:  # the process's share of the cores, for learning too
-            torch.set_num_threads(mine.threads)
+        torch.manual_seed(args.run.seed + group.rank)
+        if mine.run.threads:  # the process's share of the cores, for learning too
+            torch.set_num_threads(mine.run.threads)
         if group.distributed:
             print(
                 f"[rwalk] rank {group.rank} of {group.world_size} (pid {os.getpid()}): "
-                f"{mine.num_envs} envs seeded from {mine.seed}, {mine.threads} threads",
+                f"{mine.num_envs} envs seeded from {mine.run.seed}, {mine.run.threads} threads",
                 flush=True,
             )
         say(f"building {args.num_envs} envs (settling their starts) ...", flush=True)
@@ -366,21 +377,19 @@ def _train(args, given, group: distributed.Group, clock: float) -> tuple[Path, A
             runner.current_learning_iteration += 1  # continue after the saved iteration
             say(f"resumed from {resume[0]}: next iteration {runner.current_learning_iteration}")
         if group.main:
-            config = {"trainer": TRAINER, "args": dataclasses.asdict(args),
-                      "env": dataclasses.asdict(env.env.config)}  # fmt: skip
-            atomic_write_text(log_dir / "config.json", json.dumps(config, indent=2))
-        checkpoint = _learn(args, runner, group, clock)
-        if args.logger == "wandb" and group.main:
+            write_record(log_dir / "config.json", args, TRAINER)
+        checkpoint = _learn(args.run, runner, group, clock)
+        if args.run.logger == "wandb" and group.main:
             from rwalk.rl.wandb_writer import WandbWriter
 
             WandbWriter.finish()  # the stage's W&B run ends with it
-        if args.export and group.main:
+        if args.run.export and group.main:
             jit_path, onnx_path = export_policy(runner, log_dir / "exported")
             print(f"[rwalk] exported {jit_path} and {onnx_path} (layout: policy.json)")
     return checkpoint, args
 
 
-def _learn(args, runner: SafeRunner, group: distributed.Group, clock: float) -> Path:
+def _learn(args: RunConfig, runner: SafeRunner, group: distributed.Group, clock: float) -> Path:
     """``runner.learn`` in chunks up to each checkpoint, until --max-iterations or the
     time budget; returns the last checkpoint's path."""
     say = print if group.main else lambda *_, **__: None

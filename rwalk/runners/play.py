@@ -28,34 +28,75 @@ range. It needs a display: without one it stops at once, in one line saying so.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import sys
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from rwalk import presets
-from rwalk.cli import (
-    NATURAL_INT,
-    POSITIVE_FLOAT,
-    POSITIVE_INT,
-    UNIT_FLOAT,
-    command,
-    one_line_errors,
-)
+from rwalk import evaluation, presets
+from rwalk.cli import command, one_line_errors, parse, usage_error
 from rwalk.config import EnvConfig
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.evaluation import (
     Evaluation,
-    acts_in,
     check_policy,
     evaluate,
     load_policy,
-    saved_run,
     table,
+    trained_env,
 )
 from rwalk.progress import Progress
-from rwalk.rl.checkpoints import atomic_write_text
+from rwalk.rl.checkpoints import atomic_write_text, check_writable
+from rwalk.validation import require_at_least, require_at_most, require_in, require_positive
+
+#: Largest count a command line takes (int32: episodes, steps).
+MAX_COUNT = 2**31 - 1
+
+
+@dataclass(frozen=True)
+class PlayArgs:
+    """rwalk-play's command line (each field a flag)."""
+
+    checkpoint: Path | None = None
+    """rsl-rl checkpoint model_<it>.pt"""
+    base_gait: bool = False
+    """evaluate zero actions"""
+    task: str = "residual_walk"
+    """task of a --base-gait run without --checkpoint"""
+    command: float | None = None
+    """every episode's target velocity in m/s, which the reward and the velocity error track
+    (None: the gait's step_length / cycle_time)"""
+    episodes: int = 100
+    """episodes, one per env"""
+    seed: int = 1000
+    """episode i starts like a single env seeded seed + i"""
+    terrain_scale: float = 1.0
+    """terrain roughness, 0 flat .. 1 full"""
+    max_steps: int = presets.EVALUATION.max_episode_steps
+    """episode length in env steps"""
+    settle_steps: int = presets.EVALUATION.settle_steps
+    """settling at each start"""
+    video: Path | None = None
+    """MP4 or GIF of episode 0, needs OpenGL"""
+    video_seconds: float = 10.0
+    """length of the video"""
+    viewer: bool = False
+    """watch one robot walk in real time in MuJoCo's viewer (needs a display; Up/Down change a
+    commanded policy's speed) instead of evaluating"""
+    json: Path | None = None
+    """save the table's figures here"""
+    progress: bool = False
+    """progress lines on stderr (when not given: only if stderr is a terminal)"""
+
+    def __post_init__(self) -> None:
+        require_at_least(self, 1, "episodes", "max_steps")
+        require_at_least(self, 0, "settle_steps", "seed")
+        require_at_most(self, MAX_COUNT, "episodes", "max_steps", "settle_steps", "seed")
+        require_in(self, "terrain_scale", 0.0, 1.0)
+        require_positive(self, "video_seconds")
+        if self.command is not None:
+            require_positive(self, "command")
 
 
 def command_name() -> str:
@@ -63,78 +104,53 @@ def command_name() -> str:
     return command("rwalk.runners.play")
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog=command_name(), description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )  # fmt: skip
-    add = parser.add_argument
-    # fmt: off
-    add("--checkpoint", metavar="PATH", type=Path,
-        help="rsl-rl checkpoint model_<it>.pt (default: none)")
-    add("--base-gait", action="store_true", help="evaluate zero actions (default: off)")
-    add("--task", default="residual_walk",
-        help="task of a --base-gait run without --checkpoint (default: %(default)s)")
-    add("--command", metavar="M/S", type=POSITIVE_FLOAT,
-        help="every episode's target velocity, which the reward and the velocity error "
-        "track (default: the gait's step_length / cycle_time)")
-    add("--episodes", metavar="N", type=POSITIVE_INT, default=100,
-        help="episodes, one per env (default: %(default)s)")
-    add("--seed", metavar="SEED", type=NATURAL_INT, default=1000,
-        help="episode i starts like a single env seeded seed + i (default: %(default)s)")
-    add("--terrain-scale", metavar="SCALE", type=UNIT_FLOAT, default=1.0,
-        help="terrain roughness, 0 flat .. 1 full (default: %(default)s)")
-    add("--max-steps", metavar="STEPS", type=POSITIVE_INT, default=1000,
-        help="episode length in env steps (default: %(default)s)")
-    add("--settle-steps", metavar="STEPS", type=NATURAL_INT, default=500,
-        help="settling at each start (default: %(default)s)")
-    add("--video", metavar="PATH", type=Path,
-        help="MP4 or GIF of episode 0, needs OpenGL (default: none)")
-    add("--video-seconds", metavar="SECONDS", type=POSITIVE_FLOAT, default=10.0,
-        help="length of the video (default: %(default)s)")
-    add("--viewer", action="store_true",
-        help="watch one robot walk in real time in MuJoCo's viewer (needs a display; "
-        "Up/Down change a commanded policy's speed) instead of evaluating (default: off)")
-    add("--json", metavar="PATH", type=Path, help="save the table's figures here (default: none)")
-    add("--progress", action=argparse.BooleanOptionalAction, default=None,
-        help="progress lines on stderr (default: only when stderr is a terminal)")
-    # fmt: on
-    args = parser.parse_args(argv)
+def parse_args(argv: list[str] | None = None) -> PlayArgs:
+    """``argv`` as rwalk-play's arguments; the checkpoint's task (from its record) replaces
+    --task. Exits 2 with one line naming a bad flag or file."""
+    prog = command_name()
+    default = PlayArgs(progress=sys.stderr.isatty())
+    args = parse(PlayArgs, argv, prog=prog, description=__doc__, default=default)
     if not args.checkpoint and not args.base_gait:
-        parser.error("give --checkpoint PATH, --base-gait, or both")
+        usage_error(prog, "give --checkpoint PATH, --base-gait, or both")
     if args.viewer and (args.video or args.json):
-        parser.error("--viewer watches live: it makes no --video or --json")
+        usage_error(prog, "--viewer watches live: it makes no --video or --json")
+    for name, path in (("--json", args.json), ("--video", args.video)):
+        try:
+            if path is not None:
+                check_writable(path, name)
+        except ValueError as error:
+            usage_error(prog, str(error))
+    task = args.task
     if args.checkpoint:
         try:
-            args.task = check_policy(args.checkpoint).task
+            task = check_policy(args.checkpoint).task
         except (OSError, ValueError) as error:
-            parser.error(f"--checkpoint: {error}")
+            usage_error(prog, f"--checkpoint: {error}")
     try:
-        presets.get_task(args.task)
+        presets.get_task(task)
     except ValueError as error:
-        parser.error(f"--task: {error}")
-    return args
+        usage_error(prog, f"--task: {error}")
+    return dataclasses.replace(args, task=task)
 
 
-def commanded(args: argparse.Namespace) -> tuple[float, float] | None:
+def commanded(args: PlayArgs) -> tuple[float, float] | None:
     """The eval env's command range: --command, or the gait's speed for a policy
     trained with commands (it reads one)."""
-    trained = args.checkpoint and saved_run(args.checkpoint).command_range
+    trained = args.checkpoint and trained_env(args.checkpoint).command_range
     if args.command is None and not trained:
         return None
     speed = args.command if args.command is not None else EnvConfig().expected_velocity
     return (speed, speed)
 
 
-def evaluation_env(args: argparse.Namespace, num_envs: int) -> BatchedEnv:
-    """``num_envs`` envs of the evaluation world the command line asks for, reading the
-    action as the checkpoint's run did."""
-    acts = acts_in(args.checkpoint) if args.checkpoint else {"task": args.task}
-    config = presets.evaluation_config(
-        **acts, terrain_scale=args.terrain_scale, max_steps=args.max_steps,
-        settle_steps=args.settle_steps, command_range=commanded(args),
+def evaluation_env(args: PlayArgs, num_envs: int) -> BatchedEnv:
+    """``num_envs`` envs of the evaluation world the command line asks for, acting as the
+    checkpoint's run trained (its record)."""
+    return evaluation.evaluation_env(
+        args.checkpoint, num_envs, args.seed, args.task, terrain_scale=args.terrain_scale,
+        max_episode_steps=args.max_steps, settle_steps=args.settle_steps,
+        command_range=commanded(args),
     )  # fmt: skip
-    return BatchedEnv(num_envs, config, seed=args.seed, task=args.task)
 
 
 def play(argv: list[str] | None = None) -> list[Evaluation]:
@@ -172,7 +188,7 @@ def play(argv: list[str] | None = None) -> list[Evaluation]:
     return rows
 
 
-def view(args: argparse.Namespace, launch=None, seconds: float = float("inf")) -> int:
+def view(args: PlayArgs, launch=None, seconds: float = float("inf")) -> int:
     """--viewer: one robot, live (``launch``: a stand-in for mujoco.viewer's, in tests);
     returns the steps shown.
 
@@ -186,7 +202,7 @@ def view(args: argparse.Namespace, launch=None, seconds: float = float("inf")) -
         raise OSError(missing)
     env = evaluation_env(args, 1)
     policy = load_policy(args.checkpoint, env) if args.checkpoint else None
-    trained = args.checkpoint and saved_run(args.checkpoint).command_range
+    trained = args.checkpoint and trained_env(args.checkpoint).command_range
     speeds = tuple(trained) if trained else None
     if speeds:
         speed = commanded(args)[0]
@@ -201,5 +217,7 @@ def main(argv: list[str] | None = None) -> None:
     play(argv)
 
 
-if __name__ == "__main__":
-    main()
+if __name__ == "__main__":  # through the module by name, where tyro reads PlayArgs's types
+    from rwalk.runners.play import main as play_main
+
+    play_main()

@@ -21,19 +21,24 @@ writes the run folder (checkpoints, config.json, TensorBoard, exports) and holds
 its lock. Every rank must be started with the same flags (only --threads may
 differ): ranks that differ refuse to start, naming the flags.
 
-Every flag is a field of the run's configs (rwalk.rl.config.RunConfig,
-rwalk.presets.TrainingEnv, rwalk.rl.config.TrainConfig); config.json stores
-them, and play and the reports rebuild the policy from it. --resume goes on with
-the run's own task, world, PPO and model settings from its config.json: only the
-run settings (--log-dir, --seed, --resume, --overwrite, --max-iterations,
---max-minutes, --save-interval, --threads, --export, --dist-timeout, --logger,
---wandb-project, --run-name) and --num-envs may change; another value of any
-other flag is refused, naming it.
+Every flag is a field of the training's configs (rwalk.rl.config.Training): the
+preset (--task, --robust/--no-robust, --costs) picks the task and world; every
+field of the task's env config is a flag of its own (--env.costs.clearance 3000,
+--env.randomization.friction 0.5 1.3, --env.terrain-levels.demote 0.3; short names
+for common ones: --settle-steps, --command-range, --terrain-kinds, ...); rsl-rl's
+algorithm and models (--hidden-dims, --learning-rate, ...) and the run's settings
+(--log-dir, --max-iterations, ...). config.json records the resolved configs
+(schema 2), and play, the reports, export, resume and distillation build from
+it. --resume goes on with the run's own record: only the run settings (--log-dir,
+--seed, --resume, --overwrite, --max-iterations, --max-minutes, --save-interval,
+--threads, --export, --dist-timeout, --logger, --wandb-project, --run-name) and
+--num-envs may change; another value of any other field is refused, naming it.
 
 --logger wandb sends the metrics to Weights & Biases as well (rsl-rl's writer; pip
 install 'rwalk[wandb]'; WANDB_MODE=offline keeps them local): one W&B run per
-training stage, named --run-name (default: the --log-dir folder's name; a
---student-iterations student stage: that name + "-student").
+run folder, named --run-name (default: the --log-dir folder's name; a
+--student-iterations student stage: that name + "-student"), continued by --resume,
+its files in LOG_DIR/wandb.
 
 Writes to --log-dir: TensorBoard events (every reward term, episode length, fall
 rate, forward velocity, terrain levels), checkpoints, config.json, and at the
@@ -49,24 +54,25 @@ it marks a run in progress.
 
 from __future__ import annotations
 
-import sys
+from rwalk.threads import share_cores
 
-from rwalk.cli import command, explicit_fields, one_line_errors, parse_dataclass
+share_cores()  # before torch loads: idle OpenMP threads sleep, so that runs share a machine
+
+from rwalk.cli import command, one_line_errors
 from rwalk.rl import distributed, training
-from rwalk.rl.config import TrainArgs as Args
-from rwalk.rl.config import symmetry_refusal
+from rwalk.rl.command import parse_training
+from rwalk.rl.config import Training
+from rwalk.rl.record import read_record
 
+Args = Training
+"""rwalk-train's command line: a ``Training`` (every nested field a flag)."""
 PROG = command("rwalk.runners.train")
 """The command in usage lines and error messages."""
 
 
-def parse_args(argv: list[str] | None = None) -> Args:
-    args = parse_dataclass(Args, argv, __doc__, prog=PROG)
-    refusal = symmetry_refusal(args)
-    if refusal and "symmetry" in explicit_fields(Args, argv):  # the default adapts, a flag not
-        print(f"usage: {PROG} [-h] ...\n{PROG}: error: {refusal}", file=sys.stderr)
-        raise SystemExit(2)
-    return args
+def parse_args(argv: list[str] | None = None) -> Training:
+    """``argv`` (None: ``sys.argv[1:]``) as the training it asks for, resolved."""
+    return parse_training(Training, argv, PROG, __doc__, read_record)
 
 
 @one_line_errors("rwalk.runners.train")
@@ -79,7 +85,7 @@ def main(argv: list[str] | None = None) -> None:
         group = distributed.Group.from_env()
         if group.distributed:
             where = f"rank {group.rank} of {group.world_size}: "
-        training.train(args, explicit_fields(Args, argv))
+        training.train(args)
     except (*training.SETUP_ERRORS, distributed.GroupError) as error:
         raise SystemExit(f"{PROG}: error: {where}{error}") from None
     except RuntimeError as error:
@@ -87,7 +93,7 @@ def main(argv: list[str] | None = None) -> None:
             raise
         raise SystemExit(
             f"{PROG}: error: {where}the training's process group failed: another rank died, "
-            f"or did not answer within --dist-timeout {args.dist_timeout:g} s "
+            f"or did not answer within --dist-timeout {args.run.dist_timeout:g} s "
             f"({type(error).__name__}: {error})"
         ) from None
 

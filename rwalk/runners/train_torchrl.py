@@ -6,7 +6,7 @@
 
 (In a checkout without installing: python -m runners.train_torchrl ...)
 
-The envs are rwalk-train's (rwalk.presets.TrainingEnv): by default the robust
+The envs are rwalk-train's (the preset and --env.* flags): by default the robust
 world, its actor reading the policy's pieces with observation noise and its
 critic the privileged ones too (rwalk.rl.config.observation_groups). A Collector
 steps them (partial resets via "_reset"); GAE computes advantages; ClipPPOLoss
@@ -14,14 +14,14 @@ trains a TanhNormal actor and a value network on minibatches from a replay
 buffer, each input normalised (ObservationNorm) and the reward scaled (see
 rwalk.rl.torchrl_ppo). Flags that mean the same as rwalk-train's have its names.
 
-Writes config.json ({"trainer": "torchrl", "args", "env"}) and checkpoints
+Writes config.json (the run's record, "trainer": "torchrl") and checkpoints
 torchrl_<n>.pt (the state after <n> iterations, every --save-interval, at the end
 and when --max-minutes is spent; marked "trainer": "torchrl"), atomically, and
 prints one progress line per iteration (with that iteration's frames/s, overall
 and while collecting). A run folder belongs to one run, as with rwalk-train:
 .rwalk.lock marks a run in progress, another run's checkpoints (of either trainer)
 are refused unless --overwrite, and --resume goes on from a torchrl_<n>.pt (or a
-folder's newest) with the run's own flags (only the run settings and --num-envs
+folder's newest) with the run's own record (only the run settings and --num-envs
 may change).
 
 Several collector workers (rwalk.rl.torchrl_collect):
@@ -37,43 +37,41 @@ cores // collectors); policy weights go to the workers after every update.
 
 from __future__ import annotations
 
-from rwalk.cli import combine, command, explicit_fields, one_line_errors, parse_dataclass
-from rwalk.presets import TrainingEnv
+from rwalk.threads import share_cores
+
+share_cores()  # before torch loads: idle OpenMP threads sleep, so that runs share a machine
+
+from rwalk.cli import command, one_line_errors
 from rwalk.rl.checkpoints import CheckpointError, RunSetupError
-from rwalk.rl.config import ConfigError, ResumeConflict, RunConfig
+from rwalk.rl.command import parse_training
+from rwalk.rl.config import ResumeConflict
+from rwalk.rl.record import ConfigError, read_record
 from rwalk.rl.torchrl_collect import WorkerDied
-from rwalk.rl.torchrl_config import TorchRLConfig
-from rwalk.rl.torchrl_ppo import train
+from rwalk.rl.torchrl_config import TorchRLTraining
+from rwalk.rl.torchrl_ppo import TRAINER, train
 
-__all__ = ["Args", "main"]
+__all__ = ["Args", "main", "parse_args"]
+
+Args = TorchRLTraining
+"""rwalk-train-torchrl's command line: a ``TorchRLTraining`` (every nested field a flag)."""
 
 
-def _check(args) -> None:
-    args.train.check_batch(args.num_envs)  # a minibatch holds a frame
-
-
-#: rwalk-train-torchrl's flags: one per field of its three configs (``args.run``,
-#: ``args.env``, ``args.train`` rebuild them); config.json stores them under "args".
-Args = combine(
-    "Args",
-    {"run": RunConfig, "env": TrainingEnv, "train": TorchRLConfig},
-    defaults={"log_dir": "logs/torchrl", "max_iterations": 50, "num_envs": 256},
-    exclude=("export", "dist_timeout", "logger", "wandb_project", "run_name"),
-    doc="A TorchRL PPO run: every field is a command-line flag (--num-envs, ...), checked on "
-    "creation by the config it belongs to (RunConfig, TrainingEnv, TorchRLConfig).",
-    namespace={"check": _check},
-)
+def parse_args(argv: list[str] | None = None) -> TorchRLTraining:
+    """``argv`` as the training it asks for."""
+    prog = command("rwalk.runners.train_torchrl")
+    return parse_training(TorchRLTraining, argv, prog, __doc__,
+                          lambda path: read_record(path, TRAINER, TorchRLTraining))  # fmt: skip
 
 
 @one_line_errors("rwalk.runners.train_torchrl")
 def main(argv: list[str] | None = None) -> None:
     """The ``rwalk-train-torchrl`` command."""
     prog = command("rwalk.runners.train_torchrl")
-    args = parse_dataclass(Args, argv, __doc__, prog=prog)
+    args = parse_args(argv)
     refused = (CheckpointError, ConfigError, FileNotFoundError, ResumeConflict, RunSetupError,
                WorkerDied)  # fmt: skip
     try:
-        train(args, explicit_fields(Args, argv))
+        train(args)
     except refused as error:  # a folder in use or another run's, a bad --resume, a worker lost
         raise SystemExit(f"{prog}: error: {error}") from None
 

@@ -49,6 +49,8 @@ from rwalk.tasks.base import Task
 START_GAIT_STREAM = "gait_start"
 #: What the action's first four values do (AdaptiveGaitConfig.gait_action).
 GAIT_ACTIONS = ("delta", "target")
+#: The training's spread of the starting parameters (``AdaptiveGaitConfig.start_spread``).
+TRAINING_START_SPREAD = 0.5
 #: The adapted parameters, in the order of the action's and observation's values.
 ADAPTED: tuple[str, ...] = ("step_height", "step_length", "cycle_time", "body_height")
 
@@ -179,6 +181,32 @@ class AdaptiveGait(Task):
         "4 gait deltas (step_height, step_length, cycle_time, body_height), then 12 foot residuals"
     )
     observation = ("sensors", "gait")
+    acting_fields = (*Task.acting_fields, "bounds", "gait_action")
+    action_fields = ("bounds", "gait_action")
+
+    @classmethod
+    def training_config(cls, world: EnvConfig) -> EnvConfig:
+        """The base task's, starting each episode from parameters spread by
+        TRAINING_START_SPREAD of each range."""
+        return dataclasses.replace(super().training_config(world),
+                                   start_spread=TRAINING_START_SPREAD)  # fmt: skip
+
+    @classmethod
+    def deploy_spec(cls, core) -> dict:
+        """The trot's constants (the runtime's ``rwalk.gaitmath`` computes the foot paths
+        from the current parameters) and the parameters' start, ranges and action."""
+        controller, task, params = core.controller, core.task, core.controller.params
+        gait = {
+            "period": controller.period,
+            "duty_factor": params.duty_factor,
+            "stance_depth": params.stance_depth,
+            "offsets": controller.leg_offsets.tolist(),
+            "swing_points": controller.swing_points.tolist(),
+            "neutral": controller.neutral.tolist(),
+        }
+        ranges = {key: getattr(task, key).tolist() for key in ("start", "low", "high", "delta")}
+        adaptive = {"gait_action": core.config.gait_action, **ranges}
+        return {"runtime": "adaptive", "gait": gait, "adaptive": adaptive}
 
     def __init__(self, config: AdaptiveGaitConfig, world, num_envs: int) -> None:
         super().__init__(config, world, num_envs)

@@ -14,14 +14,15 @@ the docs' tables are all built from these declarations.
 
 from __future__ import annotations
 
-from typing import ClassVar
+import dataclasses
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from rwalk import rng
-from rwalk.config import EnvConfig
+from rwalk.config import EnvConfig, convert
 from rwalk.mirror import Mirror
 from rwalk.observations import COMMON_PIECES, PRIVILEGED_PIECES, ObsPiece, piece_catalog
 from rwalk.rewards import RewardTerm, cost_terms, spec_terms
@@ -54,6 +55,15 @@ class Task:
     single_step: ClassVar[bool] = False
     """Whether a one-env view may step through ``rwalk.envs.single_step``'s float
     pipeline (which implements this task's step on numpy and floats)."""
+    acting_fields: ClassVar[tuple[str, ...]] = (
+        "gait", "residual_scale", "control_dt", "decimation", "physics", "command_range",
+    )  # fmt: skip
+    """Config fields a trained policy acts through (its gait, action scale, timing,
+    physics and commands): an evaluation env takes them from the training's record
+    (``evaluation_config``)."""
+    action_fields: ClassVar[tuple[str, ...]] = ()
+    """Config fields that say what the action's values mean beyond its layout: a policy
+    acts only in an env whose are its training's (``rwalk.evaluation.load_policy``)."""
 
     def __init__(self, config: EnvConfig, world: World, num_envs: int) -> None:
         self.config = config
@@ -67,24 +77,58 @@ class Task:
         if config.costs is not None:
             config.costs.check_reach(world.geometry)
 
+    # ------------------------------------------------------------ configs
+    @classmethod
+    def configure(cls, config: EnvConfig, **options: Any) -> EnvConfig:
+        """``config`` with those ``options`` that this task's config has (the others are
+        another task's options, e.g. the adaptive task's ``gait_action``: ignored)."""
+        own = {f.name for f in dataclasses.fields(cls.config_type)}
+        return dataclasses.replace(config, **{k: v for k, v in options.items() if k in own})
+
+    @classmethod
+    def training_config(cls, world: EnvConfig) -> EnvConfig:
+        """This task's training env in ``world`` (a preset: ``rwalk.presets.TRAINING`` or
+        ``ROBUST``, sized by ``training_env``)."""
+        return convert(cls.config_type, world)
+
+    @classmethod
+    def evaluation_config(cls, trained: EnvConfig, episodes: EnvConfig, **changes: Any
+                          ) -> EnvConfig:  # fmt: skip
+        """The evaluation ``episodes`` (an ``EnvConfig``: world, starts, lengths) as this
+        task's config, acting as the policy trained in ``trained`` does
+        (``acting_fields``), with ``changes``."""
+        acting = {name: getattr(trained, name) for name in cls.acting_fields}
+        return dataclasses.replace(convert(cls.config_type, episodes, **acting), **changes)
+
+    @classmethod
+    def deploy_spec(cls, core: Any) -> dict[str, Any] | None:
+        """What ``rwalk.deploy`` needs beside the exported network to run this task's
+        policy on a robot (``rwalk.export.deploy_spec`` adds the timing and the legs);
+        None: the task has no deploy runtime, and an export carries no ``deploy``
+        section (the runtime refuses it, naming the task)."""
+        return None
+
     # ------------------------------------------------------------ declarations
     @classmethod
     def pieces(cls) -> dict[str, ObsPiece]:
         """Every named observation piece of this task (the views choose from these)."""
         return dict(COMMON_PIECES)
 
-    def extras(self) -> tuple[str, ...]:
-        """Pieces the views offer beside the spec observation (``command`` when the
-        config draws commands)."""
-        commanded = self.config.command_range is not None
+    @classmethod
+    def extras_for(cls, config: EnvConfig) -> tuple[str, ...]:
+        """Pieces the views offer beside the spec observation for a ``config``
+        (``command`` when it draws commands)."""
+        commanded = config.command_range is not None
         return ("phase", "lateral_offset", *(("command",) if commanded else ()))
+
+    def extras(self) -> tuple[str, ...]:
+        """``extras_for`` this task's config."""
+        return self.extras_for(self.config)
 
     def privileged(self) -> tuple[str, ...]:
         """Pieces only a critic sees (PRIVILEGED_PIECES), offered when the config varies
         the world: randomised physics, pushes, noise or terrain levels."""
-        cfg = self.config
-        varied = (cfg.randomization, cfg.pushes, cfg.observation_noise, cfg.terrain_levels)
-        return PRIVILEGED_PIECES if any(v is not None for v in varied) else ()
+        return PRIVILEGED_PIECES if self.config.varies else ()
 
     def reward_terms(self) -> tuple[RewardTerm, ...]:
         """The reward's terms, in the order they are added and reported: the spec's, then

@@ -35,6 +35,14 @@ class ResidualWalk(Task):
     def action_mirror(cls) -> Mirror:
         return mirror.RESIDUALS
 
+    @classmethod
+    def deploy_spec(cls, core) -> dict:
+        """The gait's tables, exact: the runtime looks targets up by tick, as the env does."""
+        controller = core.controller
+        gait = {"targets": controller.target_table.tolist(),
+                "phase_features": controller.phase_table.tolist()}  # fmt: skip
+        return {"runtime": "table", "gait": gait}
+
     def reset(self, rows: Tensor) -> None:
         self.tick[rows] = self.world.settled_tick
 

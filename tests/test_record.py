@@ -1,0 +1,246 @@
+"""One config story: a run's record (config.json) is its resolved configs; every nested field
+is a flag; older records migrate once; a task owns its identity."""
+
+import dataclasses
+import hashlib
+import json
+import re
+from pathlib import Path
+
+import pytest
+import torch
+
+from rwalk import episodes, presets
+from rwalk.config import EnvConfig
+from rwalk.core import Core
+from rwalk.rl.config import Training, student_training
+from rwalk.rl.legacy import TrainArgs, from_flags
+from rwalk.rl.record import ConfigError, read_record, record_of, write_record
+from rwalk.rl.torchrl_config import TorchRLTraining
+from rwalk.runners import train, train_torchrl
+from rwalk.tasks import AdaptiveGaitConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+RECORDS = Path(__file__).parent / "data" / "records"
+SMALL = ["--num-envs", "6", "--settle-steps", "4", "--max-episode-steps", "40", "--threads", "1"]
+#: The four kinds of run whose records must rebuild their envs bit for bit.
+KINDS = {
+    "default": [],
+    "adaptive teacher": ["--task", "adaptive_gait", "--command-range", "0.05", "0.25", "--costs",
+                         "--terrain-kinds", "flat", "rough", "slopes", "steps", "stones",
+                         "--teacher"],
+    "no-robust": ["--no-robust", "--terrain-scale", "0.7"],
+}  # fmt: skip
+
+
+def trace(config: EnvConfig, num_envs: int, seed: int, steps: int = 240) -> str:
+    """sha256 of every observation, reward term and ending of ``steps`` steps of random
+    actions (episodes of 40 steps: several resets from the settled-start pool)."""
+    core = Core(config, num_envs, seed=seed)
+    core.reset()
+    generator = torch.Generator().manual_seed(7)
+    digest = hashlib.sha256()
+    for _ in range(steps):
+        action = torch.rand(num_envs, core.task.action_dim, generator=generator) * 2 - 1
+        result, _ = episodes.step(core, action.double())
+        pieces = [core.piece(name) for name in core.task.pieces()]
+        ends = (result.obs, result.reward, result.terminated, result.truncated)
+        for tensor in (*ends, *result.terms.values(), *pieces):
+            digest.update(tensor.numpy().tobytes())
+    return digest.hexdigest()
+
+
+def trainings() -> dict[str, Training]:
+    runs = {name: train.parse_args([*SMALL, *flags]) for name, flags in KINDS.items()}
+    teacher = dataclasses.replace(runs["adaptive teacher"].train, student_iterations=3)
+    runs["student"] = student_training(dataclasses.replace(runs["adaptive teacher"], train=teacher))
+    return runs
+
+
+@pytest.mark.parametrize("name", ["default", "adaptive teacher", "student", "no-robust"])
+def test_the_env_built_from_the_record_is_the_env_the_run_trained_in(name, tmp_path):
+    training = trainings()[name]
+    write_record(tmp_path / "config.json", training)
+    saved = read_record(tmp_path / "config.json")
+    assert saved == training
+    built = trace(training.env_config(), training.num_envs, training.run.seed)
+    assert trace(saved.env_config(), saved.num_envs, saved.run.seed) == built
+
+
+def test_the_command_line_builds_what_the_older_flags_built():
+    # Bits unchanged: the default training and its --no-robust world, as the schema-1
+    # flags (and presets) built them before the configs became the record.
+    for flags, old in (([], {}), (["--no-robust"], {"robust": False})):
+        new = train.parse_args([*SMALL, *flags])
+        args = dataclasses.replace(TrainArgs(), num_envs=6, settle_steps=4, max_episode_steps=40,
+                                   threads=1, **old)  # fmt: skip
+        assert new == from_flags(args)
+        legacy = args.env.config(threads=1)
+        assert trace(new.env_config(), 6, 0) == trace(legacy, 6, 0)
+
+
+def test_a_student_is_blind_and_trains_in_its_teachers_world():
+    runs = trainings()
+    teacher, student = runs["adaptive teacher"], runs["student"]
+    assert student.env == teacher.env and student.train.distill == teacher.run.log_dir
+    assert "physics" in teacher.train.policy_obs and "physics" not in student.train.policy_obs
+    assert student.run.log_dir == str(Path(teacher.run.log_dir) / "student")
+
+
+@pytest.mark.parametrize(
+    ("name", "trainer", "cls"),
+    [("v1_rwalk_train", "rsl_rl", Training), ("v1_before_trainer_key", "rsl_rl", Training),
+     ("v1_torchrl", "torchrl", TorchRLTraining)],
+)  # fmt: skip
+def test_an_older_record_is_migrated_to_its_resolved_configs(name, trainer, cls):
+    migrated = read_record(RECORDS / f"{name}.json", trainer, cls)
+    stored = json.loads((RECORDS / f"{name}.migrated.json").read_text())
+    assert json.loads(json.dumps(record_of(migrated, trainer))) == stored
+    assert read_record(RECORDS / f"{name}.migrated.json", trainer, cls) == migrated
+
+
+# ------------------------------------------------------------ every nested field is a flag
+
+
+@pytest.mark.parametrize(
+    ("flags", "field", "value"),
+    [
+        (["--env.reward-weights.stability", "-5"], "reward_weights.stability", -5.0),
+        (["--env.costs.clearance", "3000"], "costs.clearance", 3000.0),
+        (["--costs", "--clearance-weight", "4000"], "costs.clearance", 4000.0),
+        (["--env.randomization.friction", "0.4", "1.1"], "randomization.friction", (0.4, 1.1)),
+        (["--env.observation-noise.joint-vel", "0.5"], "observation_noise.joint_vel", 0.5),
+        (["--env.terrain-levels.promote", "0.7"], "terrain_levels.promote", 0.7),
+        (["--no-robust", "--env.pushes.speed", "0.1", "0.2"], "pushes.speed", (0.1, 0.2)),
+    ],
+)
+def test_a_nested_field_set_on_the_command_line_reaches_the_env(flags, field, value):
+    training = train.parse_args([*SMALL, *flags])
+    core = Core(training.env_config(), training.num_envs, seed=0)
+    config = core.config
+    for part in field.split("."):
+        config = getattr(config, part)
+    assert config == value
+    if field == "reward_weights.stability":  # the term the core adds is weighed by it
+        assert core.config.reward_weights.stability == -5.0
+    if field == "randomization.friction":  # every env's drawn friction is in the new range
+        core.reset()
+        drawn = core.physics.params[:, 0]
+        assert bool(((drawn >= 0.4) & (drawn <= 1.1)).all())
+
+
+def test_a_flag_that_names_no_field_names_the_near_ones(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        train.parse_args(["--env.randomization.fricton", "0.5", "1.0"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1
+    assert "'--env.randomization.fricton'" in err and "near: --env.randomization.friction" in err
+
+
+def test_a_bad_nested_value_is_one_line_naming_its_flag(capsys):
+    with pytest.raises(SystemExit):
+        train.parse_args(["--env.randomization.friction", "1.3", "0.5"])
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--env.randomization.friction has min > max" in err
+
+
+def test_resume_refuses_a_contradicting_nested_flag_naming_both_values(tmp_path, capsys):
+    folder = tmp_path / "run"
+    tiny = ["--num-envs", "4", "--num-steps-per-env", "4", "--settle-steps", "2",
+            "--max-episode-steps", "20", "--hidden-dims", "8", "--save-interval", "1",
+            "--no-export", "--log-dir", str(folder)]  # fmt: skip
+    train.main([*tiny, "--env.costs.clearance", "3000", "--max-iterations", "1"])
+    saved = (folder / "config.json").read_text()
+    assert json.loads(saved)["env"]["costs"]["clearance"] == 3000.0
+    with pytest.raises(SystemExit) as exit_:
+        train.main([*tiny, "--resume", str(folder), "--max-iterations", "2",
+                    "--env.costs.clearance", "2000"])  # fmt: skip
+    message = str(exit_.value.code)
+    assert "--env.costs.clearance 3000.0" in message
+    assert "not --env.costs.clearance 2000.0" in message
+    assert (folder / "config.json").read_text() == saved
+    train.main([*tiny, "--resume", str(folder), "--max-iterations", "2"])  # its own come back
+    assert json.loads((folder / "config.json").read_text())["env"]["costs"]["clearance"] == 3000.0
+
+
+def test_the_torchrl_trainer_takes_the_same_nested_flags():
+    training = train_torchrl.parse_args(["--env.pushes.interval", "1.0", "2.0"])
+    assert training.env.pushes.interval == (1.0, 2.0) and training.num_envs == 256
+
+
+# ------------------------------------------------------------------------- bad records
+
+BAD_RECORDS = [
+    ("{not json", "is not JSON"),
+    ('{"schema": 3, "env": {}}', "has schema 3"),
+    ('{"schema": 2, "env": {}, "flux": 1}', "unknown key 'flux'"),
+    ('{"schema": 2, "preset": {}}', "has no env"),
+    ('{"schema": 2, "env": {"settle_steps": "x"}}', "env.settle_steps must be an int, got 'x'"),
+    ('{"schema": 2, "env": {"costs": {"clearance": -1}}}', "env.costs: GaitCosts.clearance"),
+    ('{"schema": 2, "env": {"randomization": {"friction": [1, 2, 3]}}}',
+     "env.randomization.friction must be a list of 2 items"),
+    ('{"schema": 2, "env": {"gait": {"duty_factor": 1.5}}}',
+     "env.gait: GaitParameters.duty_factor must be in (0, 1), got 1.5"),
+    ('{"schema": 2, "env": {"bounds": {}}}', "unknown key 'bounds'"),
+    ('{"schema": 2, "preset": {"task": "adaptive_gait"}, "env": {"bounds": {"step_height": '
+     '[0.05, 0.01, 0.001]}}}', "env.bounds: GaitBounds.step_height: low must be < high"),
+    ('{"schema": 2, "env": {}, "train": {"hidden_dims": [0]}}', "--hidden-dims must be sizes"),
+    ('{"schema": 2, "env": {}, "preset": {"task": "fly"}}', "unknown task 'fly'"),
+    ('{"schema": 2, "env": {"model_path": "' + "x" * 5000 + '"}}', "env.model_path must be a str"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("text", "message"), BAD_RECORDS)
+def test_a_bad_record_is_one_error_naming_the_file_and_the_field(tmp_path, text, message):
+    path = tmp_path / "config.json"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as error:
+        read_record(path)
+    assert "config.json" in str(error.value) and message in str(error.value)
+    assert "\n" not in str(error.value) and len(str(error.value)) < 2000
+
+
+def test_a_record_too_large_is_read_no_further_than_the_cap(tmp_path):
+    path = tmp_path / "config.json"
+    path.write_text('{"schema": 2, "pad": "' + "x" * (2 << 20) + '"}')
+    with pytest.raises(ConfigError, match="larger than"):
+        read_record(path)
+
+
+# ------------------------------------------------------------------------ one place each
+
+
+def test_no_module_outside_the_tasks_branches_on_a_task_name_or_a_task_configs_fields():
+    branch = re.compile(
+        r"""(==|!=|\bin\b)\s*\(?\s*["'](residual_walk|adaptive_gait)["']"""
+        r"""|["'](residual_walk|adaptive_gait)["']\s*(==|!=)"""
+        r"""|__dataclass_fields__|\.(gait_action|start_spread|bounds)\b"""
+    )
+    found = []
+    for path in (ROOT / "rwalk").rglob("*.py"):
+        if "tasks" in path.relative_to(ROOT / "rwalk").parts[:1]:
+            continue
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            code = line.split("#")[0]
+            # legacy.py reads schema-1 flags; deploy.py's adaptive runtime reads its own section
+            if branch.search(code) and path.name not in ("legacy.py", "deploy.py"):
+                found.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()}")
+    assert found == []
+
+
+def test_the_episode_and_settle_defaults_are_written_once():
+    default = re.compile(r"(episode_steps|settle_steps|max_steps|EPISODE_STEPS|SETTLE_STEPS)\b"
+                         r"[^=\n]*=\s*(1000|500)\b")  # fmt: skip
+    found = [f"{path.relative_to(ROOT)}: {match.group(0)}"
+             for path in (ROOT / "rwalk").rglob("*.py")
+             for match in default.finditer(path.read_text())]  # fmt: skip
+    assert found == ["rwalk/constants.py: EPISODE_STEPS = 1000",
+                     "rwalk/constants.py: SETTLE_STEPS = 500"]  # fmt: skip
+
+
+def test_an_evaluation_env_acts_as_the_record_says():
+    trained = AdaptiveGaitConfig(gait_action="target", command_range=(0.1, 0.2), start_spread=0.5)
+    config = presets.evaluation_env(trained, settle_steps=3)
+    assert type(config) is AdaptiveGaitConfig and config.gait_action == "target"
+    assert config.command_range == (0.1, 0.2) and config.start_spread == 0.0  # the episodes'
+    assert config.settle_steps == 3 and config.position_noise == presets.START_SPREAD
