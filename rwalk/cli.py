@@ -1,9 +1,7 @@
 """Command lines from config dataclasses (tyro): every field a flag, its docstring the help.
 
 ``parse(Args, argv)``: nested configs give dotted flags (``--env.costs.clearance``),
-``aliases`` short names (``--settle-steps``). Every refusal is one line, exit status 2:
-a config's own ``ValueError`` naming the flag as typed, a flag that names no field
-(with the near ones), a value that does not parse.
+``aliases`` short names. Every refusal is one line naming the flag as typed, exit 2.
 """
 
 from __future__ import annotations
@@ -40,7 +38,8 @@ def flags_of(value: Any, prefix: str = "") -> dict[str, str]:
         if dataclasses.is_dataclass(child):
             flat = "OmitArgPrefixes" in repr(hints[f.name])
             out |= flags_of(child, prefix if flat else f"{prefix}{f.name}.")
-        else:
+        elif child is not None or not any(map(dataclasses.is_dataclass, typing.get_args(
+                hints[f.name]))):  # a part left out (None) has no flags  # fmt: skip
             out[flag(prefix + f.name)] = f"{type(value).__name__}.{f.name}"
     return out
 
@@ -51,14 +50,12 @@ def _message(event: Any, known: dict[str, str], typed: dict[str, str]) -> str:
                        "name_or_flags", None)  # fmt: skip
     name = typed.get(argument[0], argument[0]) if argument else None
     if hasattr(event, "tokens"):
-        first = event.tokens[0].split("=")[0]
-        first = typed.get(first, first)
-        near = difflib.get_close_matches(first, list(known), 3, 0.6)
-        hint = f"; near: {', '.join(near)}" if near else ""
-        return f"unrecognized argument {first!r}{hint}"
+        first = typed.get(event.tokens[0].split("=")[0], event.tokens[0].split("=")[0])
+        near = ", ".join(difflib.get_close_matches(first, list(known), 3, 0.6))
+        return f"unrecognized argument {first!r}" + (f"; near: {near}" if near else "")
     if hasattr(event, "missing_arguments"):
-        lowered = [a.arg.lowered for a in event.missing_arguments]
-        return "missing " + ", ".join(a.metavar or a.name_or_flags[0] for a in lowered)
+        return "missing " + ", ".join(a.arg.lowered.metavar or a.arg.lowered.name_or_flags[0]
+                                      for a in event.missing_arguments)  # fmt: skip
     if hasattr(event, "choices"):
         return f"{name} must be one of {', '.join(event.choices)}, got {event.value!r}"
     text = re.sub(r"\[/?bold\]", "", str(getattr(event, "message", "")) or type(event).__name__)

@@ -12,7 +12,7 @@ from rwalk.observations import ObservationNoise
 from rwalk.perturbations import Pushes
 from rwalk.physics import Physics
 from rwalk.randomization import Randomization
-from rwalk.rewards import GaitCosts, RewardWeights
+from rwalk.rewards import GaitCosts, RewardWeights, Shaping
 
 #: Most physics substeps per env step: the controller's targets for a whole control
 #: period are computed at once, so this bounds the memory of one step (and of settling).
@@ -24,6 +24,8 @@ MAX_SETTLE_STEPS = 1_000_000
 MAX_ENVS = 1 << 24
 #: Most physics threads.
 MAX_THREADS = 1024
+#: Longest interval between two command draws (a day). Seconds.
+MAX_INTERVAL = 86_400.0
 #: Largest commanded speed, either way (the robot walks ~0.1-0.3 m/s). m/s.
 MAX_SPEED = 10.0
 
@@ -83,10 +85,16 @@ class EnvConfig:
     """Reward terms beyond the spec's, charging how the robot walks: swing clearance below
     a target, feet slipping, servo power (``rwalk.rewards.GaitCosts``). None: the spec's
     four terms only."""
+    shaping: Shaping | None = None
+    """Training-only reward terms beside the spec's: a kernel on the speed error and a
+    reward for staying up (``rwalk.rewards.Shaping``). None: none (the spec's reward)."""
     command_range: tuple[float, float] | None = None
     """None: the reward tracks the gait's step_length / cycle_time (the spec). (low,
     high): each episode draws its target velocity uniformly from it (m/s), and the
     views expose it as the piece ``command``."""
+    command_interval: float | None = None
+    """With ``command_range``: seconds between two draws of an env's target velocity within
+    an episode (None: one draw per episode, at its start)."""
     randomization: Randomization | None = None
     """Per-env physics (friction, payload, servo strength, ...) drawn at every reset;
     None: the model's own (the spec's env). See ``rwalk.randomization``."""
@@ -108,7 +116,7 @@ class EnvConfig:
         optional = (
             ("randomization", Randomization), ("pushes", Pushes),
             ("observation_noise", ObservationNoise), ("terrain_levels", TerrainLevels),
-            ("costs", GaitCosts),
+            ("costs", GaitCosts), ("shaping", Shaping),
         )  # fmt: skip
         for name, kind in kinds + optional:
             if (name, kind) in optional and getattr(self, name) is None:
@@ -176,6 +184,10 @@ class EnvConfig:
             and self.command_range[0] <= self.command_range[1]
         ):
             raise bad("command_range", "must be LOW HIGH m/s with LOW <= HIGH (or None)")
+        if self.command_interval is not None and not (
+            _is_number(self.command_interval) and 0 < self.command_interval <= MAX_INTERVAL
+        ):
+            raise bad("command_interval", f"must be None or seconds in (0, {MAX_INTERVAL:g}]")
         if self.command_range is not None and not all(
             abs(v) <= MAX_SPEED for v in self.command_range
         ):

@@ -36,8 +36,10 @@ def encode(value: Any) -> Any:
 
 def shown(value: Any) -> str:
     """``value`` for a message, at most 80 characters (a file's value may be huge)."""
-    text = repr(value) if isinstance(value, (int, float, bool, str, type(None))) else (
-        type(value).__name__
+    text = (
+        repr(value)
+        if isinstance(value, (int, float, bool, str, type(None)))
+        else (type(value).__name__)
     )
     return text if len(text) <= 80 else text[:77] + "..."
 
@@ -77,9 +79,7 @@ def _dataclass(kind: type, data: Any, where: str) -> Any:
     names = [f.name for f in dataclasses.fields(kind) if f.init]
     unknown = [key for key in data if key not in names]
     if unknown:
-        raise RecordError(
-            f"{where}: unknown key {shown(unknown[0])} (known: {', '.join(names)})"
-        )
+        raise RecordError(f"{where}: unknown key {shown(unknown[0])} (known: {', '.join(names)})")
     values = {key: decode(hints[key], value, f"{where}.{key}") for key, value in data.items()}
     try:
         return kind(**values)

@@ -293,6 +293,7 @@ class Core:
         terminated = fallen(rpy) | diverged
         moved = forward_velocity.masked_fill(diverged, 0.0)
         truncated = self.episodes.record(terms, moved, state.v_target, terminated)
+        self.task.redraw_commands(self.episodes.walked_steps)  # the next step's targets
         return StepResult(self.piece("observation"), reward, terms, terminated, truncated,
                           diverged)  # fmt: skip
 

@@ -70,7 +70,12 @@ def lock_taken(run_dir: Path) -> bool:
         return False
 
 
-@pytest.mark.parametrize("point", KILL_POINTS)
+SLOW = pytest.mark.slow  # the early kills are the ones that escaped; a later one is slow
+
+
+@pytest.mark.parametrize(
+    "point", [pytest.param(p, marks=SLOW) if p == "training" else p for p in KILL_POINTS]
+)
 def test_ranks_end_within_5_s_of_their_launcher_killed_alone(tmp_path, point):
     run_dir = tmp_path / "run"
     launcher = subprocess.Popen(

@@ -173,4 +173,3 @@ def _with_explained_variance(alg):
         return losses
 
     return updated
-

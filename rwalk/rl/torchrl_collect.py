@@ -141,9 +141,7 @@ class WorkerEnv:
 
     @property
     def seed(self) -> int:
-        return self.first_seed + self.worker * (
-            self.setup.num_envs + self.setup.env.settle_pool
-        )
+        return self.first_seed + self.worker * (self.setup.num_envs + self.setup.env.settle_pool)
 
     def __call__(self) -> TransformedEnv:
         torch.set_num_threads(self.threads)

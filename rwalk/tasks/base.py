@@ -25,7 +25,7 @@ from rwalk import rng
 from rwalk.config import EnvConfig, convert
 from rwalk.mirror import Mirror
 from rwalk.observations import COMMON_PIECES, PRIVILEGED_PIECES, ObsPiece, piece_catalog
-from rwalk.rewards import RewardTerm, cost_terms, spec_terms
+from rwalk.rewards import RewardTerm, cost_terms, shaping_terms, spec_terms
 from rwalk.world import World
 
 #: Random stream of the per-episode velocity commands (see ``rwalk.rng``).
@@ -132,10 +132,11 @@ class Task:
 
     def reward_terms(self) -> tuple[RewardTerm, ...]:
         """The reward's terms, in the order they are added and reported: the spec's, then
-        the gait costs when the config has them."""
-        costs = self.config.costs
-        extra = () if costs is None else cost_terms(costs, self.world)
-        return spec_terms(self.config.reward_weights) + extra
+        the gait costs and the training's shaping when the config has them."""
+        cfg = self.config
+        costs = () if cfg.costs is None else cost_terms(cfg.costs, self.world)
+        shaping = () if cfg.shaping is None else shaping_terms(cfg.shaping)
+        return spec_terms(cfg.reward_weights) + costs + shaping
 
     @classmethod
     def action_mirror(cls) -> Mirror:
@@ -169,6 +170,21 @@ class Task:
             return
         u = self.uniform(rows, COMMAND_STREAM, self.draws, 1)[:, 0]
         self.target[rows] = low_high[0] + u * (low_high[1] - low_high[0])
+
+    def redraw_commands(self, walked: Tensor) -> None:
+        """Within episodes: the envs that have walked a whole number of
+        ``config.command_interval`` since their start draw a new target velocity.
+
+        Args:
+            walked: env steps each episode has walked (after this step). Shape: (N,).
+        """
+        interval = self.config.command_interval
+        if interval is None or self.config.command_range is None:
+            return
+        every = max(1, round(interval / self.world.control_dt))
+        rows = ((walked % every) == 0).nonzero().squeeze(-1)
+        if rows.numel():
+            self.draw_commands(rows)
 
     def uniform(self, rows: Tensor, stream: str, counters: Tensor, n: int) -> Tensor:
         """n uniform [0, 1) numbers per env of ``rows`` from env i's key (seed + i,

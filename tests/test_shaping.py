@@ -1,0 +1,77 @@
+"""Training-only reward shaping and commands drawn within an episode: hand-computed terms,
+the spec's env untouched, the values reaching the env from rwalk-train's command line."""
+
+import dataclasses
+
+import pytest
+import torch
+
+from rwalk import Core, EnvConfig, ResidualWalkEnv
+from rwalk.rewards import TERM_NAMES, Shaping, tracking_kernel
+from rwalk.runners import train
+
+FLAT = EnvConfig(model_path="model/world_flat.xml", settle_steps=5)
+
+
+def test_the_tracking_kernel_by_hand():
+    v = torch.tensor([0.13, 0.15, 0.11, 0.17], dtype=torch.float64)
+    got = tracking_kernel(v, 0.13, 0.02)
+    # errors of 0, 1, -1 and 2 half-widths: 1, 1/2, 1/2, 1/5
+    torch.testing.assert_close(got, torch.tensor([1.0, 0.5, 0.5, 0.2], dtype=torch.float64))
+    assert tracking_kernel(0.13, 0.13, 0.02) == 1.0  # the one-env float pipeline's floats
+
+
+def test_shaping_terms_are_added_and_reported_and_the_spec_env_has_none():
+    shaped = dataclasses.replace(FLAT, shaping=Shaping(tracking=100.0, sigma=0.02, alive=2.0))
+    core = Core(shaped, 2, seed=0)
+    core.reset()
+    result = core.step(torch.zeros(2, 12))
+    assert tuple(result.terms) == (*TERM_NAMES, "tracking_kernel", "alive")
+    v = core.obs[:, 7]
+    expected = 100.0 * tracking_kernel(v, core.task.v_target, 0.02)
+    torch.testing.assert_close(result.terms["tracking_kernel"], expected)
+    assert result.terms["alive"].tolist() == [2.0, 2.0]
+    assert torch.equal(result.reward, sum(result.terms.values(), torch.zeros(2)))
+    env = ResidualWalkEnv(seed=0, settle_steps=5)
+    env.reset()
+    _, _, _, _, info = env.step(env.action_space.sample() * 0)
+    assert tuple(info["reward_components"]) == TERM_NAMES
+
+
+@pytest.mark.parametrize("bad", [dict(sigma=0.0), dict(tracking=float("nan")), dict(alive=1e9)])
+def test_bad_shaping_is_named(bad):
+    with pytest.raises(ValueError, match=r"Shaping\."):
+        Shaping(**bad)
+
+
+def test_commands_are_drawn_again_every_interval_and_env_i_is_a_single_env():
+    config = dataclasses.replace(FLAT, command_range=(0.05, 0.25), command_interval=0.1)
+    core = Core(config, 3, seed=4)
+    core.reset()
+    targets = [core.task.target.clone()]
+    for _ in range(10):  # 0.1 s = 5 steps: new draws after steps 5 and 10
+        core.step(torch.zeros(3, 12))
+        targets.append(core.task.target.clone())
+    changes = [i for i in range(1, 11) if not torch.equal(targets[i], targets[i - 1])]
+    assert changes == [5, 10]
+    assert bool(((targets[-1] >= 0.05) & (targets[-1] <= 0.25)).all())
+    single = Core(config, 1, seed=5)
+    single.reset()
+    for _ in range(10):
+        single.step(torch.zeros(1, 12))
+    assert single.task.target[0] == targets[-1][1]
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("inf"), 1e9])
+def test_a_bad_command_interval_is_named(bad):
+    with pytest.raises(ValueError, match=r"EnvConfig\.command_interval"):
+        EnvConfig(command_interval=bad)
+
+
+def test_rwalk_train_sets_shaping_and_the_interval_from_its_command_line():
+    training = train.parse_args(["--env.shaping.tracking", "300", "--env.shaping.sigma", "0.03",
+                                 "--command-range", "0.07", "0.2",
+                                 "--env.command-interval", "4"])  # fmt: skip
+    assert training.env.shaping == Shaping(tracking=300.0, sigma=0.03)
+    assert training.env.command_interval == 4.0 and training.env.command_range == (0.07, 0.2)
+    assert "command" in training.train.policy_obs  # the policy reads what it is asked
