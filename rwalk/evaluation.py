@@ -16,7 +16,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import io
-import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -31,7 +30,7 @@ from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.rewards import servo_power
 from rwalk.rl.checkpoints import CheckpointError, check_rsl_rl, load_checkpoint, quote, trainer_of
 from rwalk.rl.config import Training
-from rwalk.rl.record import read_record
+from rwalk.rl.record import read_json, read_record
 from rwalk.rl.rsl_rl_env import RslRlVecEnv
 
 #: Which command wrote a checkpoint, by its "trainer" key (or its layout, in older files).
@@ -112,14 +111,7 @@ def read_results(path: Path) -> object:
     Raises:
         ValueError: naming the file, for a file too large or not JSON.
     """
-    with Path(path).open("rb") as file:
-        data = file.read(MAX_RESULTS_BYTES + 1)
-    if len(data) > MAX_RESULTS_BYTES:
-        raise ValueError(f"{str(path)!r} is larger than {MAX_RESULTS_BYTES} bytes")
-    try:
-        return json.loads(data)
-    except (ValueError, RecursionError) as error:
-        raise ValueError(f"{str(path)!r} is not JSON ({str(error)[:120]})") from None
+    return read_json(path, MAX_RESULTS_BYTES)
 
 
 def saved_run(checkpoint: Path) -> Training:

@@ -188,3 +188,14 @@ def test_the_robust_world_is_timed_against_the_plain_and_map_only_envs():
     assert r["robust_over_map"] == fps["robust"] / fps["map"]
     assert r["env_steps_per_s"] == fps["robust"]
     assert any(line.startswith("(r) robust training env at N=4") for line in summary(results))
+
+
+@pytest.mark.slow
+def test_sharing_times_a_training_alone_and_two_side_by_side():
+    from rwalk.bench import sharing
+
+    tiny = ("--num-steps-per-env", "4", "--settle-steps", "2", "--max-episode-steps", "20",
+            "--hidden-dims", "8")  # fmt: skip
+    row = sharing.measure(8, iterations=4, flags=tiny)
+    assert row["alone_s_per_iteration"] > 0 and len(row["side_by_side_speed"]) == 2
+    assert all(speed > 0 for speed in row["side_by_side_speed"])

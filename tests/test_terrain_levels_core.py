@@ -168,16 +168,21 @@ def test_robustness_conditions_and_floors():
     with pytest.raises(ValueError, match="terrain level outside the map"):
         robustness.condition_config("new maps", map_level=10)
 
-    def row(condition, policy, falls, error):
-        e = Evaluation(policy, 100, 0.0, falls, 0.1, error, 0.001, 0.0, 1000.0)
+    def row(condition, policy, falls, error, bias=0.0):
+        e = Evaluation(policy, 100, 0.0, falls, 0.1, error, 0.001, 0.0, 1000.0,
+                       velocity_bias=bias)  # fmt: skip
         return robustness.Row(condition, policy, e)
 
-    rows = [row("payload", "base gait", 0.12, 0.08), row("payload", "a", 0.03, 0.04),
-            row("payload", "b", 0.04, 0.01), row("payload", "c", 0.0, 0.041)]  # fmt: skip
-    assert robustness.floors(rows) == {"a": "met", "b": "missed", "c": "missed"}
-    nominal = [row("nominal", "base gait", 0.1, 0.08), row("nominal", "a", 0.02, 0.02),
-               row("nominal", "b", 0.0, 0.021)]  # fmt: skip
-    assert robustness.floors(nominal) == {"a": "met", "b": "missed"}
+    # held out: falls <= 3% and <= 1/4 of the base gait's, error <= 0.03 and <= 1/2 of its,
+    # |bias| <= 0.01
+    rows = [row("payload", "base gait", 0.12, 0.08), row("payload", "a", 0.03, 0.03, -0.01),
+            row("payload", "b", 0.04, 0.01), row("payload", "c", 0.0, 0.031),
+            row("payload", "d", 0.0, 0.02, 0.011)]  # fmt: skip
+    assert robustness.floors(rows) == {"a": "met", "b": "missed", "c": "missed", "d": "missed"}
+    # nominal: falls <= 2%, error <= 0.02, |bias| <= 0.005
+    nominal = [row("nominal", "base gait", 0.1, 0.08), row("nominal", "a", 0.02, 0.02, 0.005),
+               row("nominal", "b", 0.0, 0.021), row("nominal", "c", 0.0, 0.01, -0.006)]  # fmt: skip
+    assert robustness.floors(nominal) == {"a": "met", "b": "missed", "c": "missed"}
 
 
 def test_robustness_runs_paired_episodes_and_writes_its_rows(tmp_path, capsys):

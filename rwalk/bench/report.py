@@ -22,6 +22,7 @@ LABELS = {
     "d": "gymnasium vector env",
     "t": "ResidualWalkVecEnv, thread scaling",
     "r": "robust training env vs plain and map-only",
+    "s": "two default trainings sharing the machine",
     "e": "rwalk vs EnvPool Go1 joystick",
     "e/rough": "world_train vs EnvPool Go1JoystickRoughTerrain-v1",
     "e/flat": "world_flat vs EnvPool Go1JoystickFlatTerrain-v1",
@@ -33,14 +34,19 @@ def add_ratios_to_floor(results: list[dict]) -> None:
     one timed beside it or else (a) at the same N and threads; None without one."""
     floor = {(r["n"], r["threads"]): r["physics_steps_per_s"] for r in results if r["mode"] == "a"}
     for r in results:
-        if r["mode"] in ("t", "e", "r"):  # (t) and (r) have ratios of their own; (e) no floor
+        if r["mode"] in ("t", "e", "r", "s"):  # (t), (r), (s): ratios of their own; (e) no floor
             continue
         base = r.get("floor_physics_steps_per_s") or floor.get((r["n"], r["threads"]))
         r["ratio_to_floor"] = r["physics_steps_per_s"] / base if base else None
 
 
 def worker_line(rows: list[dict]) -> str:
-    """One worker's rows on one line: each mode's (and contender's) env and physics steps/s."""
+    """One worker's rows on one line: each mode's (and contender's) env and physics steps/s
+    ((s): seconds per iteration alone and side by side)."""
+    if rows and rows[0]["mode"] == "s":
+        r = rows[0]
+        side = ", ".join(f"{v:.2f}" for v in r["side_by_side_s_per_iteration"])
+        return f"(s) {r['alone_s_per_iteration']:.2f} s/iteration alone, {side} side by side"
     return ", ".join(
         f"({' '.join(filter(None, (r['mode'], r.get('contender'))))}) "
         f"{r['env_steps_per_s']:,.0f} env steps/s "
@@ -62,7 +68,7 @@ def table(results: list[dict]) -> str:
         "| time in MuJoCo | peak RSS (MB) |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
-    rows = [r for r in results if r["mode"] not in ("t", "e", "r")]
+    rows = [r for r in results if r["mode"] not in ("t", "e", "r", "s")]
     contest = [r for r in results if r["mode"] == "e"]
     if contest and not rows:
         return "\n".join(contest_table(contest))
@@ -143,6 +149,14 @@ def summary(results: list[dict]) -> list[str]:
             out.append(
                 f"(b) {r['threads']} threads vs 1 at N={r['n']}, one process, alternating: "
                 f"{r['env_speedup']:.2f}x (raw mujoco.rollout: {r['floor_speedup']:.2f}x)"
+            )
+    for r in results:
+        if r["mode"] == "s":
+            speeds = " and ".join(f"{v:.2f}x" for v in r["side_by_side_speed"])
+            out.append(
+                f"(s) two default trainings of N={r['num_envs']} side by side: each at {speeds} "
+                f"of one alone ({r['alone_s_per_iteration']:.2f} s per iteration alone; with "
+                f"libgomp's own wait policy {r['alone_spinning_s_per_iteration']:.2f} s)"
             )
     for r in results:
         if r["mode"] == "r":

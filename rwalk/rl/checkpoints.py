@@ -102,6 +102,20 @@ def check_writable(path: str | os.PathLike[str], what: str) -> None:
     raise ValueError(f"{what} {str(path)!r} {why}")
 
 
+def check_outputs(prog: str, outputs: dict[str, Path | None]) -> None:
+    """Before a command's work: exit with one usage line (``rwalk.cli.usage_error``) for
+    the first of ``outputs`` (flag -> file, None: not asked for) that could not be
+    written (``check_writable``)."""
+    from rwalk.cli import usage_error
+
+    for flag, path in outputs.items():
+        try:
+            if path is not None:
+                check_writable(path, flag)
+        except ValueError as error:
+            usage_error(prog, str(error))
+
+
 def save_checkpoint(obj: Any, path: str | os.PathLike[str]) -> Path:
     """``torch.save`` through ``atomic_write``."""
     return atomic_write(path, lambda file: torch.save(obj, file))

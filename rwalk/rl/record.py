@@ -85,7 +85,7 @@ def read_json(path: Path, limit: int = MAX_CONFIG_BYTES) -> Any:
     except OSError as error:
         raise ConfigError(f"{str(path)!r} cannot be read ({error.strerror})") from None
     if len(data) > limit:
-        raise ConfigError(f"{str(path)!r} is larger than {limit} bytes: not a run's")
+        raise ConfigError(f"{str(path)!r} is larger than {limit} bytes")
     try:
         return json.loads(data)
     except (ValueError, RecursionError) as error:

@@ -40,7 +40,7 @@ from rwalk.adaptive_evaluation import (
 from rwalk.cli import command, one_line_errors, parse, usage_error
 from rwalk.config import MAX_ENVS, MAX_SETTLE_STEPS, MAX_STEPS
 from rwalk.evaluation import Evaluation, check_policy, read_results
-from rwalk.rl.checkpoints import atomic_write_text, check_writable
+from rwalk.rl.checkpoints import atomic_write_text, check_outputs
 from rwalk.validation import require_at_least, require_at_most, require_in
 
 #: Most steps of an episode here (10^5: 33 minutes of walking).
@@ -123,11 +123,8 @@ def parse_args(argv: list[str] | None = None) -> AdaptiveReportArgs:
         return args
     if args.residual is None or args.adaptive is None:
         usage_error(PROG, "give --residual and --adaptive checkpoints (or --tables)")
-    try:  # before any row runs
-        for name in FILES:
-            check_writable(args.out / name, "--out")
-    except ValueError as error:
-        usage_error(PROG, str(error))
+    for name in FILES:  # before any row runs
+        check_outputs(PROG, {"--out": args.out / name})
     for flag, path, task in (("--residual", args.residual, "residual_walk"),
                              ("--adaptive", args.adaptive, "adaptive_gait")):  # fmt: skip
         try:  # every file, before any row runs

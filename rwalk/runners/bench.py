@@ -29,12 +29,13 @@ from typing import Annotated
 
 import tyro
 
+from rwalk.bench import sharing
 from rwalk.bench.envpool import envpool_missing
 from rwalk.bench.modes import MODES_HELP, ONLY_MODES, WorkerFailed, run_worker, worker_runs
 from rwalk.bench.report import LABELS, add_ratios_to_floor, plot, summary, table, worker_line
-from rwalk.cli import command, one_line_errors, parse, usage_error
+from rwalk.cli import command, one_line_errors, parse
 from rwalk.config import MAX_ENVS, MAX_THREADS
-from rwalk.rl.checkpoints import atomic_write_text, check_writable
+from rwalk.rl.checkpoints import atomic_write_text, check_outputs
 
 SIZES = (1, 16, 256, 1024, 4096, 8192)
 QUICK_SIZES = (16, 1024)
@@ -118,12 +119,7 @@ def parse_args(argv: list[str] | None = None) -> BenchArgs:
     """``argv`` as rwalk-bench's arguments; exits 2 with one line naming a bad flag."""
     prog = command("rwalk.runners.bench")
     args = parse(BenchArgs, argv, prog=prog, description=f"{__doc__}\n{MODES_HELP}")
-    for flag, path in (("--json", args.json), ("--plot", args.plot)):
-        try:  # before the sweep
-            if path is not None:
-                check_writable(path, flag)
-        except ValueError as error:
-            usage_error(prog, str(error))
+    check_outputs(prog, {"--json": args.json, "--plot": args.plot})  # before the sweep
     return args
 
 
@@ -149,8 +145,9 @@ def _sweep(args: BenchArgs) -> tuple[list[dict], int]:
             print(f"skipped: {envpool_missing()}", flush=True)
             continue
         try:
-            rows = run_worker(mode, n, threads, window)
-        except WorkerFailed as error:
+            rows = [sharing.measure(n) | {"mode": "s", "n": n, "threads": threads}] if (
+                mode == "s") else run_worker(mode, n, threads, window)  # fmt: skip
+        except (WorkerFailed, RuntimeError) as error:
             print(f"failed:\n{error}")
             failed += 1
             continue

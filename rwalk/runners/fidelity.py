@@ -39,7 +39,7 @@ from rwalk.fidelity import (
     run_cases,
     table,
 )
-from rwalk.rl.checkpoints import atomic_write_text, check_writable
+from rwalk.rl.checkpoints import atomic_write_text, check_outputs
 from rwalk.validation import require_at_least, require_at_most, require_positive
 
 PROG = command("rwalk.runners.fidelity")
@@ -113,12 +113,7 @@ def parse_args(argv: list[str] | None = None) -> FidelityArgs:
         usage_error(PROG, f"--checkpoint {str(args.checkpoint)!r} is not a file")
     if args.policy_only and args.checkpoint is None:
         usage_error(PROG, "--policy-only needs --checkpoint")
-    for flag, path in (("--json", args.json), ("--plot", args.plot)):
-        try:  # before any run
-            if path is not None:
-                check_writable(path, flag)
-        except ValueError as error:
-            usage_error(PROG, str(error))
+    check_outputs(PROG, {"--json": args.json, "--plot": args.plot})  # before any run
     return args
 
 

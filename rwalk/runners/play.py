@@ -47,7 +47,7 @@ from rwalk.evaluation import (
     trained_env,
 )
 from rwalk.progress import Progress
-from rwalk.rl.checkpoints import atomic_write_text, check_writable
+from rwalk.rl.checkpoints import atomic_write_text, check_outputs
 from rwalk.validation import require_at_least, require_at_most, require_in, require_positive
 
 #: Largest count a command line takes (int32: episodes, steps).
@@ -114,12 +114,7 @@ def parse_args(argv: list[str] | None = None) -> PlayArgs:
         usage_error(prog, "give --checkpoint PATH, --base-gait, or both")
     if args.viewer and (args.video or args.json):
         usage_error(prog, "--viewer watches live: it makes no --video or --json")
-    for name, path in (("--json", args.json), ("--video", args.video)):
-        try:
-            if path is not None:
-                check_writable(path, name)
-        except ValueError as error:
-            usage_error(prog, str(error))
+    check_outputs(prog, {"--json": args.json, "--video": args.video})
     task = args.task
     if args.checkpoint:
         try:

@@ -28,7 +28,7 @@ from rwalk.cli import command, one_line_errors, parse, usage_error
 from rwalk.config import MAX_ENVS, MAX_SETTLE_STEPS, MAX_STEPS, EnvConfig
 from rwalk.evaluation import check_policy
 from rwalk.levels import TerrainLevels
-from rwalk.rl.checkpoints import atomic_write_text, check_writable
+from rwalk.rl.checkpoints import atomic_write_text, check_outputs
 from rwalk.robustness import CONDITIONS, condition_config, plot, read_rows, run_condition, table
 from rwalk.validation import require_at_least, require_at_most
 
@@ -89,12 +89,7 @@ def parse_args(argv: list[str] | None = None) -> RobustnessArgs:
     Exits 2 with one line naming a bad flag or file."""
     args = parse(RobustnessArgs, argv, prog=PROG, description=__doc__)
     outputs = {"--plot": args.plot} | ({} if args.tables else {"--json": args.json})
-    for flag, path in outputs.items():
-        try:  # before any row runs
-            if path is not None:
-                check_writable(path, flag)
-        except ValueError as error:
-            usage_error(PROG, str(error))
+    check_outputs(PROG, outputs)  # before any row runs
     if args.tables:
         return args
     labels = [text.rpartition("=")[0] or Path(text).parent.name for text in args.checkpoint]

@@ -29,7 +29,7 @@ import tyro
 from rwalk import presets
 from rwalk.cli import command, one_line_errors, parse, usage_error
 from rwalk.config import MAX_ENVS, MAX_STEPS
-from rwalk.rl.checkpoints import atomic_write_text, check_writable
+from rwalk.rl.checkpoints import atomic_write_text, check_outputs
 from rwalk.validation import require_at_least, require_at_most
 
 #: The worlds the runtime walks alone by default (the base-gait check's).
@@ -79,12 +79,7 @@ def parse_args(argv: list[str] | None = None) -> Sim2SimArgs:
     for world in args.world:
         if not world.is_file():
             usage_error(PROG, f"--world: {str(world)!r} not found")
-    for flag, path in (("--out", args.out / "exported" / "policy.json"), ("--json", args.json)):
-        try:  # before any work
-            if path is not None:
-                check_writable(path, flag)
-        except ValueError as error:
-            usage_error(PROG, str(error))
+    check_outputs(PROG, {"--out": args.out / "exported" / "policy.json", "--json": args.json})
     try:
         record = check_policy(args.checkpoint)
     except (OSError, ValueError) as error:
