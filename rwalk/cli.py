@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from rwalk.validation import *  # noqa: F403 (the checks runners once imported from here)
-from rwalk.validation import flag
+from rwalk.validation import InputError, flag
 
 
 def command(module: str) -> str:
@@ -105,11 +105,9 @@ def one_line_errors(module: str):
     def wrap(main: Callable) -> Callable:
         @functools.wraps(main)
         def run(argv: list[str] | None = None):
-            from rwalk.starts import SettleError
-
             try:
                 return main(argv)
-            except (ValueError, MemoryError, OSError, SettleError) as error:
+            except (ValueError, MemoryError, OSError, InputError) as error:
                 text = " ".join(str(error).split()) or type(error).__name__
                 print(f"{command(module)}: error: {text[:2000]}", file=sys.stderr)
                 raise SystemExit(2 if isinstance(error, ValueError) else 1) from None

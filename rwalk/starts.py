@@ -33,6 +33,7 @@ from rwalk.config import EnvConfig
 from rwalk.constants import OBS_CONTACT, OBS_DIM, OBS_POS, OBS_QUAT
 from rwalk.rewards import fallen, quat_to_rpy
 from rwalk.sim import BatchedSim
+from rwalk.validation import InputError
 from rwalk.world import World
 
 #: Attempts at a start that does not fall or diverge while settling.
@@ -47,7 +48,7 @@ FOOTPRINT_RADIUS = 0.13
 START_STREAM = "start_pose"
 
 
-class SettleError(RuntimeError):
+class SettleError(InputError):
     """Starts that fall or diverge while settling in every attempt: the start-pose noise,
     the world or its randomised physics are too hard for the base gait."""
 

@@ -16,6 +16,11 @@ __all__ = [
 ]  # fmt: skip
 
 
+class InputError(RuntimeError):
+    """A run that cannot go on because of what it was given (not a bug in rwalk): the
+    runners end it in one line (``rwalk.cli.one_line_errors``)."""
+
+
 def flag(name: str) -> str:
     """The command-line flag of a dataclass field: ``save_interval`` -> ``--save-interval``."""
     return "--" + name.replace("_", "-")
