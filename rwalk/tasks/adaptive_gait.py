@@ -68,9 +68,13 @@ class GaitBounds:
     """Ranges and delta scales of the adapted parameters (metres, seconds)."""
 
     step_height: Bound = Bound(0.01, 0.04, 0.00075)  # noqa: RUF009 (immutable)
+    """Height of the swing apex above the stance line: (low, high, delta), metres."""
     step_length: Bound = Bound(0.0, 0.16, 0.004)  # noqa: RUF009 (immutable)
+    """Stride, the distance the body advances per cycle: (low, high, delta), metres."""
     cycle_time: Bound = Bound(0.3, 0.9, 0.015)  # noqa: RUF009 (immutable)
+    """Duration of one gait cycle: (low, high, delta), seconds."""
     body_height: Bound = Bound(0.05, 0.09, 0.001)  # noqa: RUF009 (immutable)
+    """Commanded height of the hip points above the ground: (low, high, delta), metres."""
 
     def __post_init__(self) -> None:
         for name in ADAPTED:
