@@ -93,10 +93,14 @@ class GaitCosts:
     """Per m/s of horizontal world speed of each foot touching the ground, summed over feet."""
     power: float = 1.0
     """Per watt of mechanical servo power, sum over joints of |torque x joint speed|."""
+    stumble: float = 0.0
+    """Per foot touching something in mid swing (MID_SWING), where the swing curve is
+    highest: it hit the ground or an obstacle's face (legged_gym's stumble term reads
+    contact forces, which these sensors do not give). 0: off, and no term."""
 
     def __post_init__(self) -> None:
         _require_finite_numbers(self)
-        for name in ("clearance", "slip", "power"):
+        for name in ("clearance", "slip", "power", "stumble"):
             if getattr(self, name) < 0:
                 raise ValueError(
                     f"GaitCosts.{name} is the size of a cost and must be >= 0, "
@@ -216,6 +220,12 @@ def _legs(per_leg: Tensor) -> Tensor:
     return total
 
 
+def _mid_swing(swing_progress: Tensor) -> Tensor:
+    """Legs whose swing progress is within MID_SWING. (N, 4) -> (N, 4) bool."""
+    low, high = MID_SWING
+    return (swing_progress >= low) & (swing_progress <= high)
+
+
 def clearance_shortfall(clearance: Tensor, swing_progress: Tensor, target: float) -> Tensor:
     """Sum over feet in mid swing (progress within MID_SWING) of max(0, target - clearance).
 
@@ -226,9 +236,17 @@ def clearance_shortfall(clearance: Tensor, swing_progress: Tensor, target: float
             touch-down; outside [0, 1] in stance. Shape: (N, 4).
         target: the clearance asked. Metres.
     """
-    low, high = MID_SWING
-    mid = (swing_progress >= low) & (swing_progress <= high)
-    return _legs(torch.clamp(target - clearance, min=0.0) * mid)
+    return _legs(torch.clamp(target - clearance, min=0.0) * _mid_swing(swing_progress))
+
+
+def mid_swing_contacts(contact: Tensor, swing_progress: Tensor) -> Tensor:
+    """How many feet touch something while in mid swing (progress within MID_SWING).
+
+    Args:
+        contact: foot contact flags. Shape: (N, 4) bool.
+        swing_progress: as ``clearance_shortfall``'s. Shape: (N, 4).
+    """
+    return _legs((contact & _mid_swing(swing_progress)).to(swing_progress.dtype))
 
 
 def foot_slip(contact: Tensor, foot_velocity: Tensor) -> Tensor:
@@ -306,11 +324,13 @@ def cost_terms(costs: GaitCosts, world) -> tuple[RewardTerm, ...]:
     duty = controller.params.duty_factor
     samples = len(HEIGHT_OFFSETS)
 
+    def swing_progress(s: StepState) -> Tensor:
+        return (controller.leg_phases(s.sources.task.sensed_phase) - duty) / (1.0 - duty)
+
     def clearance(s: StepState) -> Tensor:
         heights = foot_clearances(s.sources.sensors, s.sources.terrain).view(-1, 4, samples)
         passing = torch.minimum(heights[..., 0], heights[..., 1]) - radius  # under, ahead
-        progress = (controller.leg_phases(s.sources.task.sensed_phase) - duty) / (1.0 - duty)
-        return clearance_shortfall(passing, progress, costs.clearance_target)
+        return clearance_shortfall(passing, swing_progress(s), costs.clearance_target)
 
     def slip(s: StepState) -> Tensor:
         contact = s.sources.sensors[:, OBS_CONTACT] > 0.5
@@ -320,11 +340,15 @@ def cost_terms(costs: GaitCosts, world) -> tuple[RewardTerm, ...]:
         torque = torch.from_numpy(s.sources.sim.actuator_force)
         return servo_power(torque, s.sources.sensors[:, OBS_JOINT_VEL])
 
-    return (
+    def stumble(s: StepState) -> Tensor:
+        return mid_swing_contacts(s.sources.sensors[:, OBS_CONTACT] > 0.5, swing_progress(s))
+
+    terms = (
         RewardTerm("clearance", -costs.clearance, clearance),
         RewardTerm("slip", -costs.slip, slip),
         RewardTerm("power", -costs.power, power),
     )
+    return terms + ((RewardTerm("stumble", -costs.stumble, stumble),) if costs.stumble else ())
 
 
 #: Names of the spec's reward terms, in the order they are reported.

@@ -13,7 +13,13 @@ from rwalk import AdaptiveGaitConfig, Core, EnvConfig, GaitCosts, GaitParameters
 from rwalk.constants import OBS_CONTACT, OBS_JOINT_VEL
 from rwalk.observations import foot_velocities
 from rwalk.presets import TrainingEnv
-from rwalk.rewards import MID_SWING, clearance_shortfall, foot_slip, servo_power
+from rwalk.rewards import (
+    MID_SWING,
+    clearance_shortfall,
+    foot_slip,
+    mid_swing_contacts,
+    servo_power,
+)
 
 FLAT = "model/world_flat.xml"
 F64 = torch.float64
@@ -30,6 +36,14 @@ def test_clearance_shortfall_counts_mid_swing_feet_below_the_target():
     expected = torch.tensor([(0.015 - 0.005) + 0.0 + 0.0 + (0.015 + 0.01), 0.015], dtype=F64)
     assert torch.equal(value, expected)
     assert MID_SWING == (0.25, 0.75)
+
+
+def test_mid_swing_contacts_count_feet_touching_in_the_middle_of_their_swing():
+    contact = torch.tensor([[True, True, True, False], [True, True, False, True]])
+    progress = torch.tensor([[0.5, 0.1, 0.75, 0.5], [-0.2, 0.25, 0.5, 0.7499]], dtype=F64)
+    # row 0: mid swing and touching, early swing, touching at 0.75, mid swing in the air
+    # row 1: stance, touching at 0.25, in the air, touching
+    assert mid_swing_contacts(contact, progress).tolist() == [2.0, 2.0]
 
 
 def test_foot_slip_sums_the_horizontal_speed_of_feet_on_the_ground():
@@ -67,7 +81,7 @@ def test_foot_velocities_match_mujoco_s_own_site_velocity():
 # ------------------------------------------------------------------ terms in the env
 def _core(task="residual_walk", n=3, **changes):
     kind = AdaptiveGaitConfig if task == "adaptive_gait" else EnvConfig
-    config = kind(model_path=FLAT, settle_steps=10, costs=COSTS, **changes)
+    config = kind(model_path=FLAT, settle_steps=10, **({"costs": COSTS} | changes))
     return Core(config, n, seed=0, task=task)
 
 
@@ -110,6 +124,27 @@ def test_a_standing_robot_s_swing_feet_fall_short_by_the_target():
         shortfall = -result.terms["clearance"].item() / COSTS.clearance
         assert shortfall == pytest.approx(mid * COSTS.clearance_target, abs=mid * 0.002)
         seen += mid
+    assert seen > 0
+
+
+def test_stumble_is_a_term_only_when_asked_and_counts_the_shuffling_feet():
+    """Off (0), the costs declare no stumble term, so earlier runs keep their reward; on,
+    a robot whose swing feet rise 1 micrometre touches the ground with every mid-swing
+    foot."""
+    assert "stumble" not in [t.name for t in _core().terms]
+    gait = dataclasses.replace(GaitParameters(), step_height=1e-6)
+    costs = dataclasses.replace(COSTS, stumble=7.0)
+    core = _core(gait=gait, n=1, costs=costs)
+    assert [(t.name, t.weight) for t in core.terms][-1] == ("stumble", -7.0)
+    core.reset()
+    duty, seen = gait.duty_factor, 0
+    for _ in range(40):
+        result = core.step(torch.zeros(1, 12))
+        progress = (core.controller.leg_phases(core.task.sensed_phase)[0] - duty) / (1 - duty)
+        mid = (progress >= MID_SWING[0]) & (progress <= MID_SWING[1])
+        touching = (core.obs[0, OBS_CONTACT] > 0.5) & mid
+        assert result.terms["stumble"].item() == -7.0 * int(touching.sum())
+        seen += int(touching.sum())
     assert seen > 0
 
 
@@ -169,6 +204,8 @@ def test_the_target_action_moves_each_parameter_toward_its_target_at_the_delta_r
     [
         ({"clearance": -1.0}, "clearance"),
         ({"slip": -0.5}, "slip"),
+        ({"stumble": -2.0}, "stumble"),
+        ({"stumble": math.nan}, "stumble"),
         ({"power": -1e-9}, "power"),
         ({"power": math.nan}, "power"),
         ({"slip": math.inf}, "slip"),
