@@ -11,7 +11,8 @@ in (a) and (b)); the base gait and a residual policy walk as they do.
 
 ``gait_by_terrain`` puts the adaptive policy on every kind of tile (flat, rough,
 slopes, steps, stones) of a held-out terrain-levels map at every level and reports
-the mean and spread of each gait parameter it commands; ``adaptation`` checks the
+the mean and spread of each gait parameter it commands, and of how high its feet rise
+above the ground under them in each swing (residuals included); ``adaptation`` checks the
 step height on rough and step tiles at the upper levels against flat ground.
 """
 
@@ -38,9 +39,20 @@ from rwalk.evaluation import (
     trained_env,
 )
 from rwalk.levels import TerrainLevels
+from rwalk.observations import HEIGHT_OFFSETS, foot_clearances
 from rwalk.robustness import HELD_OUT_MAP_SEED, on_map
 from rwalk.tasks.adaptive_gait import ADAPTED
 
+#: What the gait statistics hold, in order: the commanded parameters, then each swing's
+#: peak: the highest the foot's bottom rose above the ground under it in that swing
+#: (what the step height and the residuals together gave). SI units.
+MEASURED = (*ADAPTED, "swing_peak")
+#: Each quantity's label, scale and unit in the tables and the figure.
+LABELS = {
+    "step_height": ("step height", 1000, "mm"), "step_length": ("step length", 1000, "mm"),
+    "cycle_time": ("cycle time", 1, "s"), "body_height": ("body height", 1000, "mm"),
+    "swing_peak": ("swing peak above ground", 1000, "mm"),
+}  # fmt: skip
 #: Commanded speeds of the rows (c). m/s.
 SPEEDS = (0.05, 0.10, 0.15, 0.20, 0.25)
 #: The kinds of tile ``gait_by_terrain`` walks on, flat first.
@@ -99,20 +111,21 @@ def compare(
 
 @dataclass(frozen=True)
 class GaitStats:
-    """The commanded gait of one kind of tile at one level, over its episodes."""
+    """The gait of one kind of tile at one level, over its episodes (``MEASURED``)."""
 
     kind: str
     level: int
     episodes: int
     fall_rate: float
     mean: tuple[float, ...]
-    """Per parameter (``ADAPTED`` order, SI units): mean over episodes of each
-    episode's mean."""
+    """Per quantity (``MEASURED`` order; rows of reports older than the swing peak hold
+    only ``ADAPTED``'s): mean over episodes of each episode's mean."""
     interval: tuple[float, ...]
-    """Per parameter: half-width of the 95% interval of ``mean`` (1.96 standard errors
+    """Per quantity: half-width of the 95% interval of ``mean`` (1.96 standard errors
     over episodes)."""
     spread: tuple[float, ...]
-    """Per parameter: standard deviation over every step of every episode."""
+    """Per quantity: standard deviation over every sample (step, or swing) of every
+    episode."""
 
 
 def gait_by_terrain(
@@ -157,11 +170,11 @@ def walk_levels(
         sums, squares, counts, fell = _walk(env, policy_for(env), seed, steps)
         for k, kind in enumerate(TERRAIN_KINDS):
             rows = slice(k, None, kinds)  # env i walks on kind i % kinds
-            n = counts[rows].clamp(min=1).unsqueeze(-1)
+            n = counts[rows].clamp(min=1)
             per_episode = sums[rows] / n
-            pooled_mean = sums[rows].sum(0) / n.sum()
-            pooled_var = squares[rows].sum(0) / n.sum() - pooled_mean**2
-            sd = per_episode.std(0) if episodes > 1 else torch.zeros(len(ADAPTED))
+            pooled_mean = sums[rows].sum(0) / n.sum(0)
+            pooled_var = squares[rows].sum(0) / n.sum(0) - pooled_mean**2
+            sd = per_episode.std(0) if episodes > 1 else torch.zeros(len(MEASURED))
             out.append(GaitStats(
                 kind=kind, level=level, episodes=episodes,
                 fall_rate=float(fell[rows].double().mean()),
@@ -173,27 +186,40 @@ def walk_levels(
 
 
 def _walk(env: BatchedEnv, policy, seed: int, steps: int):
-    """One episode per env: per env, sums and sums of squares of the parameters over its
-    steps after SKIP_STEPS until its episode ended, their count, and whether it fell."""
+    """One episode per env: per env and ``MEASURED`` quantity, the sum and sum of squares of
+    its samples after SKIP_STEPS until the episode ended (the parameters each step, the
+    peak of each swing that ended), their count, and whether the env fell."""
     core = env.core
     env.set_seed(seed)
     core.reset()
     policy.reset()
-    n = core.num_envs
-    sums = torch.zeros(n, len(ADAPTED), dtype=torch.float64)
+    n, m = core.num_envs, len(ADAPTED)
+    sums = torch.zeros(n, len(MEASURED), dtype=torch.float64)
     squares = torch.zeros_like(sums)
-    counts = torch.zeros(n, dtype=torch.float64)
+    counts = torch.zeros_like(sums)
     ended = torch.zeros(n, dtype=torch.bool)
     fell = torch.zeros(n, dtype=torch.bool)
+    radius = core.world.geometry.foot_radius
+    in_swing = torch.zeros(n, 4, dtype=torch.bool)
+    peak = torch.zeros(n, 4, dtype=torch.float64)
     with torch.inference_mode():
         for step in range(steps):
             _, end = episodes.step(core, policy(), auto_reset=False)
+            swing = core.controller.swing_at(core.task.sensed_phase)
+            under = foot_clearances(core.obs, core.terrain).view(n, 4, len(HEIGHT_OFFSETS))
+            height = under[..., 0] - radius
             if step >= SKIP_STEPS:
                 live = (~ended).double().unsqueeze(-1)
                 params = core.task.params
-                sums += params * live
-                squares += params * params * live
-                counts += live[:, 0]
+                sums[:, :m] += params * live
+                squares[:, :m] += params * params * live
+                counts[:, :m] += live
+                landed = (in_swing & ~swing).double() * live  # swings that ended this step
+                sums[:, m] += (peak * landed).sum(-1)
+                squares[:, m] += (peak * peak * landed).sum(-1)
+                counts[:, m] += landed.sum(-1)
+            peak = torch.where(in_swing & swing, torch.maximum(peak, height), height)
+            in_swing = swing
             if end is not None:
                 fresh = end.ids[~ended[end.ids]]
                 fell[fresh] = end.stats["terminated"][~ended[end.ids]].bool()
@@ -225,48 +251,53 @@ def adaptation(stats: list[GaitStats]) -> dict:
 
 
 def gait_table(stats: list[GaitStats]) -> str:
-    """Mean ± 95% interval (spread) of each parameter per kind and level, as Markdown."""
-    units = {"step_height": 1000, "step_length": 1000, "cycle_time": 1, "body_height": 1000}
-    names = {"step_height": "step height (mm)", "step_length": "step length (mm)",
-             "cycle_time": "cycle time (s)", "body_height": "body height (mm)"}  # fmt: skip
+    """Mean ± 95% interval (spread) of each quantity (``MEASURED``) per kind and level, as
+    Markdown; "-" where an older report's row lacks it."""
     lines = [
-        "| kind | level | falls | " + " | ".join(names[p] for p in ADAPTED) + " |",
-        "| --- | --- | --- |" + " --- |" * len(ADAPTED),
+        "| kind | level | falls | "
+        + " | ".join(f"{LABELS[p][0]} ({LABELS[p][2]})" for p in MEASURED)
+        + " |",
+        "| --- | --- | --- |" + " --- |" * len(MEASURED),
     ]
     for r in stats:
         cells = []
-        for i, p in enumerate(ADAPTED):
-            u, digits = units[p], (1 if units[p] > 1 else 3)
-            cells.append(f"{r.mean[i] * u:.{digits}f} ± {r.interval[i] * u:.{digits}f} "
+        for i, p in enumerate(MEASURED):
+            u = LABELS[p][1]
+            digits = 1 if u > 1 else 3
+            cells.append("-" if i >= len(r.mean) else
+                         f"{r.mean[i] * u:.{digits}f} ± {r.interval[i] * u:.{digits}f} "
                          f"({r.spread[i] * u:.{digits}f})")  # fmt: skip
         lines.append(f"| {r.kind} | {r.level} | {r.fall_rate:.0%} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
 def plot_levels(stats: list[GaitStats], path: Path) -> None:
-    """Each parameter against the terrain level, one line per kind with its 95% intervals."""
+    """Each quantity (``MEASURED``, those every row holds) against the terrain level, one
+    line per kind with its 95% intervals."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    units = {"step_height": (1000, "mm"), "step_length": (1000, "mm"), "cycle_time": (1, "s"),
-             "body_height": (1000, "mm")}  # fmt: skip
-    fig, axes = plt.subplots(2, 2, figsize=(10, 7), sharex=True)
-    for ax, (i, name) in zip(axes.flat, enumerate(ADAPTED), strict=True):
-        scale, unit = units[name]
+    shown = [p for i, p in enumerate(MEASURED) if all(i < len(r.mean) for r in stats)]
+    fig, axes = plt.subplots(2, 3, figsize=(14, 7), sharex=True)
+    for ax in axes.flat[len(shown) :]:
+        ax.set_visible(False)
+    for ax, (i, name) in zip(axes.flat, enumerate(shown), strict=False):  # shown: a prefix
+        label, scale, unit = LABELS[name]
         for kind in TERRAIN_KINDS:
             rows = [r for r in stats if r.kind == kind]
             ax.errorbar([r.level for r in rows], [r.mean[i] * scale for r in rows],
                         yerr=[r.interval[i] * scale for r in rows], capsize=2, marker="o",
                         markersize=3, label=kind)  # fmt: skip
-        ax.set_title(f"{name} ({unit})")
+        ax.set_title(f"{label} ({unit})")
         ax.grid(alpha=0.3)
     for ax in axes[1]:
         ax.set_xlabel("terrain level (0 flat .. 9 hardest)")
+        ax.xaxis.set_tick_params(labelbottom=True)
     axes[0, 0].legend()
     fig.suptitle(
-        "Adaptive policy: commanded gait by kind of tile and level (held-out map, 95% intervals)"
+        "Adaptive policy: its gait by kind of tile and level (held-out map, 95% intervals)"
     )
     fig.tight_layout()
     fig.savefig(path, dpi=90)

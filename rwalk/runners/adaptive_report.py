@@ -13,7 +13,8 @@ policy trained with commands reads it, the base gait and a residual policy walk
 as they do. Then the adaptive policy walks --episodes episodes of --gait-steps
 steps on each kind of tile (flat, rough, slopes, steps, stones) of a held-out
 terrain-levels map at each level: the mean, 95% interval and spread of each gait
-parameter it commands, and whether its step height on rough and step tiles at
+parameter it commands and of its swing peaks (how high each swing lifted the foot
+above the ground under it), its falls, and whether its step height on rough and step tiles at
 levels >= 5 is at least 1.5x that on flat ground. Writes adaptive.json (every
 row) and adaptive_levels.png, and prints the tables.
 """
@@ -29,6 +30,7 @@ from rwalk import presets
 from rwalk.adaptive_evaluation import (
     ADAPTATION_FLOOR,
     GAIT_STEPS,
+    MEASURED,
     GaitStats,
     adaptation,
     compare,
@@ -110,7 +112,7 @@ def _read(path: Path) -> tuple[dict[str, list[Evaluation]], list[GaitStats]]:
             raise ValueError("a gait row must hold the fields of GaitStats")
         stats.append(GaitStats(str(row["kind"])[:50], int(row["level"]), int(row["episodes"]),
                                float(row["fall_rate"]),
-                               *(tuple(float(v) for v in row[k][:4])
+                               *(tuple(float(v) for v in row[k][:len(MEASURED)])
                                  for k in ("mean", "interval", "spread"))))  # fmt: skip
     return tables, stats
 
