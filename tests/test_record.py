@@ -148,11 +148,22 @@ def test_a_flag_that_names_no_field_names_the_near_ones(capsys):
     assert "'--env.randomization.fricton'" in err and "near: --env.randomization.friction" in err
 
 
-def test_a_bad_nested_value_is_one_line_naming_its_flag(capsys):
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--env.randomization.friction", "1.3", "0.5"],
+         "--env.randomization.friction has min > max"),
+        (["--costs", "--env.costs.stumble", "-1"], "--env.costs.stumble is the size of a cost"),
+        (["--costs", "--env.costs.stumble", "inf"], "--env.costs.stumble must be a finite number"),
+        (["--task", "adaptive_gait", "--env.bounds.step-height.low", "0.05"],
+         "--env.bounds.step-height: low must be < high"),
+    ],
+)  # fmt: skip
+def test_a_bad_nested_value_is_one_line_naming_its_flag(capsys, flags, message):
     with pytest.raises(SystemExit):
-        train.parse_args(["--env.randomization.friction", "1.3", "0.5"])
+        train.parse_args(flags)
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "--env.randomization.friction has min > max" in err
+    assert err.count("\n") == 1 and message in err
 
 
 def test_resume_refuses_a_contradicting_nested_flag_naming_both_values(tmp_path, capsys):
