@@ -148,11 +148,3 @@ def robust_world() -> dict:
 
 
 robust_parts = robust_world
-
-
-def __getattr__(name: str):
-    if name == "TrainingEnv":  # schema-1 flags, now in rwalk.rl.legacy
-        from rwalk.rl.legacy import TrainingEnv
-
-        return TrainingEnv
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -16,10 +16,10 @@ from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.collectors.distributed import DistributedCollector
 
 from rwalk.observations import PRIVILEGED_PIECES
-from rwalk.presets import TrainingEnv
 from rwalk.rl.checkpoints import load_checkpoint
 from rwalk.rl.config import observation_groups
 from rwalk.rl.legacy import TorchRLArgs as Args
+from rwalk.rl.legacy import TrainingEnv
 from rwalk.rl.torchrl_collect import (
     WorkerDied,
     WorkerEnv,

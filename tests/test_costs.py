@@ -12,7 +12,6 @@ import torch
 from rwalk import AdaptiveGaitConfig, Core, EnvConfig, GaitCosts, GaitParameters
 from rwalk.constants import OBS_CONTACT, OBS_JOINT_VEL
 from rwalk.observations import foot_velocities
-from rwalk.presets import TrainingEnv
 from rwalk.rewards import (
     MID_SWING,
     clearance_shortfall,
@@ -20,6 +19,7 @@ from rwalk.rewards import (
     mid_swing_contacts,
     servo_power,
 )
+from rwalk.rl.legacy import TrainingEnv
 
 FLAT = "model/world_flat.xml"
 F64 = torch.float64

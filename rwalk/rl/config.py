@@ -402,7 +402,7 @@ def observation_groups(task, env: EnvConfig, train: TrainConfig | None = None
 
     Args:
         task: the task (class or instance) whose pieces the groups are.
-        env: the training's envs (or ``rwalk.presets.TrainingEnv``, an older run's flags).
+        env: the training's envs (or ``rwalk.rl.legacy.TrainingEnv``, an older run's flags).
         train: the training's config (None: the defaults).
     """
     if hasattr(env, "config") and not isinstance(env, EnvConfig):  # a TrainingEnv
