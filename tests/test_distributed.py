@@ -154,6 +154,21 @@ def test_resume_continues_every_rank_from_rank_0s_checkpoint(two_ranks, tmp_path
     assert [it for it, _ in rank0] == [2, 3] and rank0 == rank1
 
 
+def test_a_warm_start_starts_every_rank_from_rank_0s_file(two_ranks, tmp_path):
+    source = two_ranks[0] / "rank0" / "run"
+    code, out = run(
+        [*TORCHRUN, "--standalone", "--nproc-per-node", "2", "-m", "rwalk.runners.train",
+         *TINY, "--max-iterations", "1", "--log-dir", str(tmp_path / "run"),
+         "--warm-start", str(source)],
+        **{distributed.PARAMETER_HASHES_ENV: str(tmp_path / "hashes")},
+    )  # fmt: skip
+    assert code == 0, out[-4000:]
+    assert out.count(f"warm start from {source / 'model_1.pt'}") == 1
+    rank0, rank1 = hashes(tmp_path / "hashes", 0), hashes(tmp_path / "hashes", 1)
+    assert [it for it, _ in rank0] == [0] and rank0 == rank1
+    assert rank0 != hashes(two_ranks[0] / "hashes", 0)[:1]  # not a fresh start's update
+
+
 # (c) ranks that differ refuse to start; rank 0's setup errors reach every rank ------------------
 def test_ranks_with_different_flags_refuse_to_start_naming_the_rank_and_flag(tmp_path):
     argv = [*TINY, "--max-iterations", "2", "--log-dir", str(tmp_path / "run")]

@@ -1,5 +1,6 @@
-"""Teacher, student, memory and symmetry (rwalk-train --teacher / --distill / --actor /
---symmetry): tiny runs through the real rsl-rl runners, and the refusals of bad pairings."""
+"""Teacher, student, memory, symmetry and warm starts (rwalk-train --teacher / --distill /
+--actor / --symmetry / --warm-start): tiny runs through the real rsl-rl runners, and the
+refusals of bad pairings."""
 
 import json
 import shutil
@@ -112,6 +113,10 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
         (["--symmetry", "--actor", "gru"], "--symmetry needs --actor mlp"),
         (["--symmetry", "--distill", "x.pt"], "--symmetry and --distill do not go together"),
         (["--teacher", "--distill", "x.pt"], "--teacher and --distill do not go together"),
+        (
+            ["--warm-start", "x.pt", "--distill", "y.pt"],
+            "--warm-start and --distill do not go together",
+        ),
     ],
 )
 def test_bad_pairings_are_usage_errors(flags, message, capsys):
@@ -156,3 +161,58 @@ def test_two_ranks_distil_one_student(teacher, tmp_path):
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert [it for it, _ in checkpoint_files(tmp_path / "run")] == [0, 1]
     assert "student_state_dict" in load_checkpoint(tmp_path / "run" / "model_1.pt")
+
+
+def _frames_seen(checkpoint: Path) -> int:
+    """Observations the actor's normaliser has counted (every step of every env so far)."""
+    return int(load_checkpoint(checkpoint)["actor_state_dict"]["obs_normalizer.count"])
+
+
+def test_a_warm_start_takes_the_models_and_starts_a_new_run(tmp_path, capsys):
+    source, run = tmp_path / "source", tmp_path / "run"
+    train.main([*TINY, "--max-iterations", "2", "--log-dir", str(source)])
+    per_iteration = 8 * 8  # --num-envs x --num-steps-per-env
+    assert _frames_seen(source / "model_1.pt") == 2 * per_iteration
+    # another world (no pushes), the same pieces and models: iteration 0 of a new run,
+    # its normaliser going on from the source's counts
+    flags = [*TINY, "--warm-start", str(source), "--env.pushes.speed", "0", "0",
+             "--log-dir", str(run)]  # fmt: skip
+    train.main([*flags, "--max-iterations", "1"])
+    assert f"warm start from {source / 'model_1.pt'}" in capsys.readouterr().out
+    saved = load_checkpoint(run / "model_0.pt")
+    assert saved["iter"] == 0 and _frames_seen(run / "model_0.pt") == 3 * per_iteration
+    assert json.loads((run / "config.json").read_text())["train"]["warm_start"] == str(source)
+    # resuming it goes on from its own checkpoint, not from the warm start again
+    train.main([*flags, "--max-iterations", "2", "--resume", str(run)])
+    assert "warm start" not in capsys.readouterr().out
+    assert _frames_seen(run / "model_1.pt") == 4 * per_iteration
+
+
+def test_a_warm_start_that_does_not_fit_is_named(teacher, tmp_path):
+    source = tmp_path / "source"
+    train.main([*TINY, "--max-iterations", "1", "--log-dir", str(source)])
+
+    def refused(*flags: str) -> str:
+        with pytest.raises(SystemExit) as exit_:
+            train.main([*TINY, "--max-iterations", "2", "--log-dir", str(tmp_path / "out"),
+                        *flags])  # fmt: skip
+        assert not (tmp_path / "out").exists() or not any((tmp_path / "out").glob("*.pt"))
+        return str(exit_.value.code)
+
+    missing = tmp_path / "missing.pt"
+    assert f"--warm-start {missing}: checkpoint" in refused("--warm-start", str(missing))
+    assert "not found" in refused("--warm-start", str(missing))
+    lone = tmp_path / "lone" / "model_0.pt"
+    lone.parent.mkdir()
+    shutil.copy(source / "model_0.pt", lone)
+    assert "config.json is not beside" in refused("--warm-start", str(lone))
+    assert ("its run trained with --task residual_walk, this run with --task adaptive_gait"
+            in refused("--warm-start", str(source), "--task", "adaptive_gait"))  # fmt: skip
+    assert "--policy-obs" in refused("--warm-start", str(source), "--no-robust")
+    assert "--policy-obs" in refused("--warm-start", str(teacher))  # reads privileged pieces
+    assert "--hidden-dims" in refused("--warm-start", str(source), "--hidden-dims", "8")
+    assert "--actor" in refused("--warm-start", str(source), "--actor", "gru")
+    student = tmp_path / "student"
+    train.main([*TINY, "--distill", str(teacher), "--max-iterations", "1",
+                "--log-dir", str(student)])  # fmt: skip
+    assert "a distilled student" in refused("--warm-start", str(student))

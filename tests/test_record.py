@@ -100,10 +100,11 @@ def test_an_older_record_is_migrated_to_its_resolved_configs(name, trainer, cls)
 
 
 def test_a_record_written_before_a_field_existed_reads_that_field_as_its_default(tmp_path):
-    # Schema-2 records of this round were written before EnvConfig.shaping and
-    # command_interval existed: a missing optional part is the default (off), as it was.
+    # Schema-2 records of this round were written before EnvConfig.shaping,
+    # command_interval and TrainConfig.warm_start existed: a missing field is the default
+    # (off), as it was.
     data = json.loads((RECORDS / "v1_rwalk_train.migrated.json").read_text())
-    del data["env"]["shaping"], data["env"]["command_interval"]
+    del data["env"]["shaping"], data["env"]["command_interval"], data["train"]["warm_start"]
     (tmp_path / "config.json").write_text(json.dumps(data))
     record = read_record(tmp_path / "config.json", "rsl_rl", Training)
     assert record.env.shaping is None and record.env.command_interval is None

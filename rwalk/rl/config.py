@@ -160,6 +160,12 @@ class TrainConfig:
     """train a blind student against this frozen teacher checkpoint, or the newest in this
     run folder (of an rwalk-train --teacher run), with rsl-rl's Distillation: the student
     reads the policy's pieces (with their noise)"""
+    warm_start: str = ""
+    """start the actor and the critic (weights, observation normalisers, action std) from
+    this checkpoint file, or the newest in this run folder, of an rwalk-train run of this
+    task whose actor and critic read the same pieces with the same models; unlike --resume,
+    this run starts at iteration 0 with a fresh optimizer and curriculum, in this command's
+    world (a policy trained in one world, fine-tuned in the robust one)"""
     gradient_length: int = 15
     """--distill: steps whose losses add up before each gradient step (a recurrent student
     learns through them)"""
@@ -184,6 +190,9 @@ class TrainConfig:
         if self.student_iterations and not self.teacher:
             raise ValueError("--student-iterations needs --teacher: the student is distilled "
                              "from the teacher this run trains")  # fmt: skip
+        if self.warm_start and self.distill:
+            raise ValueError("--warm-start and --distill do not go together: a distilled "
+                             "student learns from its teacher, from scratch")  # fmt: skip
         if self.teacher and self.distill:
             raise ValueError("--teacher and --distill do not go together: a teacher is "
                              "trained with PPO, then distilled into a student")  # fmt: skip
@@ -436,7 +445,7 @@ def student_training(teacher: Training) -> Training:
     pieces but the privileged ones), with the teacher's PPO settings and --overwrite."""
     blind = tuple(name for name in teacher.train.policy_obs if name not in PRIVILEGED_PIECES)
     train = dataclasses.replace(
-        teacher.train, teacher=False, distill=teacher.run.log_dir, policy_obs=blind,
+        teacher.train, teacher=False, distill=teacher.run.log_dir, warm_start="", policy_obs=blind,
         actor=teacher.train.student_actor, student_iterations=0, symmetry=False, critic_obs=(),
     )  # fmt: skip
     run = dataclasses.replace(

@@ -107,6 +107,27 @@ def rsl_rl_config(args, teacher: Teacher | None = None) -> dict[str, Any]:
     return config
 
 
+def _run_checkpoint(flag: str, value: str) -> tuple[Path, dict[str, Any], Training]:
+    """The checkpoint a flag names (a file, or a folder's newest that loads), its state,
+    and its run's record (the config.json beside it).
+
+    Raises:
+        FileNotFoundError, CheckpointError, ConfigError: naming the flag and the file.
+    """
+    try:
+        if Path(value).is_dir():  # its newest checkpoint that loads
+            path, state = newest_checkpoint(value)
+        else:
+            path = Path(value)
+            state = check_rsl_rl(load_checkpoint(path), path)
+        config = path.parent / "config.json"
+        if not config.is_file():
+            raise FileNotFoundError(f"its run's config.json is not beside {str(path)!r}")
+        return path, state, read_record(config)
+    except (FileNotFoundError, CheckpointError, ConfigError) as error:
+        raise type(error)(f"{flag} {value}: {error}") from None
+
+
 def teacher_of(args) -> Teacher | None:
     """The teacher --distill names, checked against this run: an rsl-rl PPO checkpoint of
     a run trained with --teacher, of this task and world.
@@ -119,11 +140,7 @@ def teacher_of(args) -> Teacher | None:
     distill = args.train.distill
     if not distill:
         return None
-    if Path(distill).is_dir():  # its newest checkpoint that loads
-        path, state = newest_checkpoint(distill)
-    else:
-        path = Path(distill)
-        state = check_rsl_rl(load_checkpoint(path), path)
+    path, state, teacher = _run_checkpoint("--distill", distill)
     if "actor_state_dict" not in state:
         raise RunSetupError(f"--distill {path}: a distilled student, not a teacher trained "
                             "with --teacher")  # fmt: skip
@@ -131,10 +148,6 @@ def teacher_of(args) -> Teacher | None:
         raise RunSetupError(f"--distill {path}: the teacher's run is --log-dir "
                             f"{args.run.log_dir}; the student would write over it: choose "
                             "another --log-dir")  # fmt: skip
-    config = path.parent / "config.json"
-    if not config.is_file():
-        raise FileNotFoundError(f"--distill {path}: its run's config.json is not beside it")
-    teacher = read_record(config)
     if not teacher.train.teacher:
         raise RunSetupError(
             f"--distill {path}: its run trained without --teacher, so its actor reads no "
@@ -149,6 +162,46 @@ def teacher_of(args) -> Teacher | None:
                 f"student with {shown(name, side(args))}: a teacher teaches its own task and world"
             )
     return Teacher(path, teacher)
+
+
+#: What a --warm-start checkpoint's run must share with the run it starts: the task, the
+#: pieces its actor and critic read, and their models.
+WARM_START_SAME = ("--task", "--policy-obs", "--critic-obs", "--actor", "--hidden-dims",
+                   "--rnn-hidden-dim")  # fmt: skip
+
+
+def warm_start_of(args: Training) -> Path | None:
+    """The checkpoint --warm-start names, checked against this run: an rsl-rl PPO save of
+    a run of this task whose actor and critic read the same pieces with the same models
+    (``WARM_START_SAME``; a recurrent layer's size only for a recurrent actor).
+
+    Raises:
+        FileNotFoundError, CheckpointError, ConfigError: naming the flag and the file.
+        RunSetupError: naming the flag and both values, for a checkpoint that does not fit.
+    """
+    value = args.train.warm_start
+    if not value:
+        return None
+    path, state, theirs = _run_checkpoint("--warm-start", value)
+    if "actor_state_dict" not in state or "critic_state_dict" not in state:
+        raise RunSetupError(f"--warm-start {path}: a distilled student, not a policy trained "
+                            "with PPO (it has no critic)")  # fmt: skip
+    mine = args.resolved()
+
+    def side(training: Training, name: str) -> Any:
+        field = name[2:].replace("-", "_")
+        return training.task if field == "task" else getattr(training.train, field)
+
+    for name in WARM_START_SAME:
+        if name == "--rnn-hidden-dim" and mine.train.actor == "mlp":
+            continue
+        if side(theirs, name) != side(mine, name):
+            raise RunSetupError(
+                f"--warm-start {path}: its run trained with {shown(name, side(theirs, name))}, "
+                f"this run with {shown(name, side(mine, name))}: a warm start needs the same "
+                "task, observation pieces and models"
+            )
+    return path
 
 
 def shown(option: str, value: Any) -> str:
@@ -283,18 +336,24 @@ class Setup(NamedTuple):
     """The teacher of a distillation."""
     teacher_data: bytes | None
     """Its checkpoint's bytes, read by rank 0 (None in a single process)."""
+    warm_start: Path | None = None
+    """The checkpoint whose actor and critic a new run starts from (--warm-start)."""
+    warm_start_data: bytes | None = None
+    """Its bytes, read by rank 0 (None in a single process)."""
 
 
 def _claim_run(args: Training, group: distributed.Group, stack: contextlib.ExitStack) -> Setup:
-    """Rank 0 checks --resume and --distill, takes the run folder's lock (held until
-    ``stack`` closes) and claims the folder; every rank gets rank 0's setup, or its error."""
-    resume, teacher, failure = None, None, None
+    """Rank 0 checks --resume, --distill and --warm-start, takes the run folder's lock (held
+    until ``stack`` closes) and claims the folder; every rank gets rank 0's setup, or its
+    error."""
+    resume, teacher, warm, failure = None, None, None, None
     if group.main:
         try:
             resume = resume_point(args)
             if resume is not None:
                 args = resume[2]
             teacher = teacher_of(args)
+            warm = None if resume else warm_start_of(args)  # resuming, the run's own state
             run = args.run
             if run.logger == "wandb":
                 from rwalk.rl import wandb_writer
@@ -310,16 +369,18 @@ def _claim_run(args: Training, group: distributed.Group, stack: contextlib.ExitS
             failure = error
     distributed.raise_if_failed(group, failure, SETUP_ERRORS)
     if not group.distributed:
-        return Setup(args, resume and resume[:2], None, teacher, None)
+        return Setup(args, resume and resume[:2], None, teacher, None, warm)
     sent = {
         "args": record_of(args),
         "resume": resume and [str(resume[0]), resume[1]],
         "teacher": teacher and [str(teacher.path), record_of(teacher.args)],
+        "warm_start": warm and str(warm),
     }
     shared = distributed.broadcast_json(group, sent if group.main else None)
     files = []
-    for found, key in ((resume, "resume"), (teacher, "teacher")):
-        data = found[0].read_bytes() if group.main and found else None
+    for found, key in ((resume and resume[0], "resume"), (teacher and teacher.path, "teacher"),
+                       (warm, "warm_start")):  # fmt: skip
+        data = found.read_bytes() if group.main and found else None
         files.append(distributed.broadcast_bytes(group, data) if shared[key] else None)
     return Setup(
         _received(shared["args"]),
@@ -328,6 +389,8 @@ def _claim_run(args: Training, group: distributed.Group, stack: contextlib.ExitS
         shared["teacher"] and Teacher(Path(shared["teacher"][0]),
                                       _received(shared["teacher"][1])),
         files[1],
+        shared["warm_start"] and Path(shared["warm_start"]),
+        files[2],
     )  # fmt: skip
 
 
@@ -370,6 +433,10 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
             if teacher is not None:  # its actor only: the student's curriculum is its own
                 runner.load(str(teacher.path), data=setup.teacher_data, env_state=False)
                 say(f"distilling the teacher {teacher.path}")
+            if setup.warm_start is not None:  # its models; this run's optimizer and curriculum
+                runner.load(str(setup.warm_start), {"actor": True, "critic": True},
+                            data=setup.warm_start_data, env_state=False)  # fmt: skip
+                say(f"warm start from {setup.warm_start}")
         else:  # every rank loads rank 0's file
             runner.load(str(resume[0]), data=setup.resume_data)
             if env.core.terrain_map is not None:
