@@ -340,6 +340,7 @@ def test_failed_collectives_are_told_from_other_errors():
     assert not distributed.is_group_failure(RuntimeError("3 of 8 starts fell while settling"))
 
 
+@pytest.mark.slow  # ~20 s; a group from a static rendezvous resumes in test_resume_continues_...
 def test_two_agents_as_two_nodes_train_resume_and_end_together(tmp_path):
     """torchrun's multi-node launch on this machine: two agents (--nnodes 2, one process
     each) meet through a c10d rendezvous, train one run, resume it, and end together."""
