@@ -5,6 +5,7 @@ refusals of bad pairings."""
 import json
 import shutil
 import subprocess
+from functools import partial
 from pathlib import Path
 
 import pytest
@@ -125,13 +126,17 @@ def test_bad_pairings_are_usage_errors(flags, message, capsys):
     assert exit_.value.code == 2 and message in capsys.readouterr().err
 
 
+def _refused(out: Path, *flags: str) -> str:
+    """The one-line error of a tiny training into ``out`` with ``flags``, which must have
+    written no checkpoint there."""
+    with pytest.raises(SystemExit) as exit_:
+        train.main([*TINY, "--max-iterations", "2", "--log-dir", str(out), *flags])
+    assert not out.exists() or not any(out.glob("*.pt"))
+    return str(exit_.value.code)
+
+
 def test_a_checkpoint_that_is_no_teacher_of_this_run_is_named(teacher, tmp_path):
-    def refused(*flags: str) -> str:
-        with pytest.raises(SystemExit) as exit_:
-            train.main([*TINY, "--max-iterations", "2", "--log-dir", str(tmp_path / "out"),
-                        *flags])  # fmt: skip
-        assert not (tmp_path / "out").exists() or not any((tmp_path / "out").glob("*.pt"))
-        return str(exit_.value.code)
+    refused = partial(_refused, tmp_path / "out")
 
     assert "not found" in refused("--distill", str(tmp_path / "missing.pt"))
     cut = tmp_path / "cut" / "model_1.pt"
@@ -192,12 +197,7 @@ def test_a_warm_start_that_does_not_fit_is_named(teacher, tmp_path):
     source = tmp_path / "source"
     train.main([*TINY, "--max-iterations", "1", "--log-dir", str(source)])
 
-    def refused(*flags: str) -> str:
-        with pytest.raises(SystemExit) as exit_:
-            train.main([*TINY, "--max-iterations", "2", "--log-dir", str(tmp_path / "out"),
-                        *flags])  # fmt: skip
-        assert not (tmp_path / "out").exists() or not any((tmp_path / "out").glob("*.pt"))
-        return str(exit_.value.code)
+    refused = partial(_refused, tmp_path / "out")
 
     missing = tmp_path / "missing.pt"
     assert f"--warm-start {missing}: checkpoint" in refused("--warm-start", str(missing))
