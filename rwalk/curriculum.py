@@ -20,6 +20,8 @@ from rwalk.levels import TerrainLevels, TerrainMap, update_levels
 
 #: Random stream of the levels of envs that pass the top of a terrain map.
 LEVEL_STREAM = "terrain_level"
+#: Random stream of the review episodes (``TerrainLevels.review``): whether, and which level.
+REVIEW_STREAM = "terrain_review"
 
 
 class Curriculum:
@@ -51,12 +53,20 @@ class Curriculum:
         """Each env's kind of tile, an index into ``levels.kinds``. Shape: (N,)."""
         self.draws = torch.zeros(num_envs, dtype=torch.long)
         """Levels drawn so far by each env (recycled past the top). Shape: (N,)."""
+        self.reviewing = torch.zeros(num_envs, dtype=torch.bool)
+        """Whether each env's episode runs on a level drawn at or below its own
+        (``levels.review``) instead of its own. Shape: (N,)."""
+        self.review_level = torch.zeros(num_envs, dtype=torch.long)
+        """The level of each reviewing env's episode. Shape: (N,)."""
+        self.reviews = torch.zeros(num_envs, dtype=torch.long)
+        """Review draws so far by each env. Shape: (N,)."""
         self._seed = 0
 
     def seed(self, seed: int) -> None:
         """Key the level draws by ``seed`` (env i draws from seed + i) and restart them."""
         self._seed = seed
         self.draws.zero_()
+        self.reviews.zero_()
 
     def move(
         self,
@@ -67,7 +77,8 @@ class Curriculum:
         target: Tensor | float,
         control_dt: float,
     ) -> None:
-        """Move the envs of ``rows`` that walked an episode a level up or down.
+        """Move the envs of ``rows`` that walked an episode on their own level a level up
+        or down, then draw the level of each one's next episode (``levels.review``).
 
         Args:
             rows: env indices. Shape: (M,).
@@ -76,9 +87,20 @@ class Curriculum:
             target: velocity each env tracked (m/s): a float, or per env (N,).
         """
         levels = self.levels
-        if levels is None or not levels.curriculum:
+        if levels is None:
             return
-        rows = rows[walked[rows] > 0]  # first resets end no episode
+        self._move(rows, walked, distance, fell, target, control_dt)
+        if levels.review > 0:  # env i's k-th draw from the key (seed + i, REVIEW_STREAM, k)
+            u = rng.uniform_rows(self._seed, rows, REVIEW_STREAM, self.reviews, 2)
+            self.reviewing[rows] = u[:, 0] < levels.review
+            self.review_level[rows] = torch.floor(u[:, 1] * (self.terrain_level[rows] + 1)).long()
+
+    def _move(self, rows: Tensor, walked: Tensor, distance: Tensor, fell: Tensor,
+              target: Tensor | float, control_dt: float) -> None:  # fmt: skip
+        levels = self.levels
+        if not levels.curriculum:
+            return
+        rows = rows[(walked[rows] > 0) & ~self.reviewing[rows]]  # first resets end no episode
         if rows.numel() == 0:
             return
         target = target[rows] if isinstance(target, Tensor) else target
@@ -99,9 +121,8 @@ class Curriculum:
             return self._start
         if ids is None:
             return np.asarray(self.terrain_map.origin(0, 0), dtype=np.float64)
-        return self.terrain_map.origins(
-            self.terrain_level[ids].numpy(), self.terrain_kind[ids].numpy()
-        )
+        level = torch.where(self.reviewing[ids], self.review_level[ids], self.terrain_level[ids])
+        return self.terrain_map.origins(level.numpy(), self.terrain_kind[ids].numpy())
 
     def log(self) -> dict[str, Tensor]:
         """TensorBoard scalars: ``Curriculum/terrain_level`` (mean level of all envs) and
@@ -116,7 +137,9 @@ class Curriculum:
 
     def state(self) -> dict[str, Tensor]:
         """Per-env tensors to keep when the core is pickled."""
-        return {"terrain_level": self.terrain_level, "draws": self.draws}
+        return {"terrain_level": self.terrain_level, "draws": self.draws,
+                "reviewing": self.reviewing, "review_level": self.review_level,
+                "reviews": self.reviews}  # fmt: skip
 
     def checkpoint(self) -> dict[str, Tensor]:
         """What a checkpoint keeps of the curriculum: the levels (empty without a map)."""
@@ -146,4 +169,5 @@ class Curriculum:
                 f"{self.terrain_level.numel()}: the curriculum starts again at the start level"
             )
         self.terrain_level.copy_(saved.clamp(0, self.levels.levels - 1))
+        self.reviewing.zero_()
         return None

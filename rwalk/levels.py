@@ -93,6 +93,10 @@ class TerrainLevels:
     recycle: bool = True
     """An env promoted beyond the top level restarts at a uniformly drawn level (legged_gym's
     rule), so that easy ground stays in the mix; False: it stays at the top."""
+    review: float = 0.0
+    """Share of episodes that start on a level drawn uniformly from 0 to the env's own, so that
+    ground already passed stays in every batch; such an episode does not move the env's
+    level. 0: every episode on the env's own level (legged_gym's rule)."""
 
     def __post_init__(self) -> None:
         def is_int(value: object) -> bool:
@@ -138,7 +142,7 @@ class TerrainLevels:
         for name in ("curriculum", "recycle"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
-        for name in ("promote", "demote"):
+        for name in ("promote", "demote", "review"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
                 raise ValueError(f"{name} must be a fraction in [0, 1], got {value!r}")

@@ -286,6 +286,8 @@ def test_a_kick_interval_meant_as_never_never_kicks():
         (lambda: TerrainLevels(cell=1e-5), "height samples"),
         (lambda: TerrainLevels(tile_length=1e7), "height samples"),
         (lambda: TerrainLevels(recycle="no"), "recycle must be a bool"),
+        (lambda: TerrainLevels(review=1.5), "review must be a fraction in .0, 1., got 1.5"),
+        (lambda: TerrainLevels(review=math.nan), "review must be a fraction in .0, 1., got nan"),
         (lambda: Physics(iterations=10**12), "Physics.iterations must be at most"),
         (lambda: Physics(timestep="x"), "Physics.timestep must be a finite number"),
         (lambda: Physics(solver=["CG"]), "Physics.solver must be one of"),

@@ -264,6 +264,34 @@ def test_envs_passing_the_top_restart_at_a_drawn_level():
     assert stay.terrain_level.tolist() == [3, 3, 3, 3]
 
 
+def test_review_episodes_start_at_or_below_the_env_s_level_and_do_not_move_it():
+    levels = TerrainLevels(**{**vars(SMALL), "start_level": 3, "review": 0.5})
+    c = Core(config(terrain_levels=levels), 64, seed=4)
+    c.reset()
+    cur = c.curriculum
+    reviewing, review_level = cur.reviewing.clone(), cur.review_level.clone()
+    assert 16 < int(reviewing.sum()) < 48  # about half of 64 (binomial: 32 +- 4)
+    assert set(review_level[reviewing].tolist()) == {0, 1, 2, 3}  # uniform over 0..3
+    # every env starts on the pad of its episode's tile
+    level = torch.where(reviewing, review_level, cur.terrain_level)
+    origins = c.terrain_map.origins(level.numpy(), c.terrain_kind.numpy())
+    xy = c.obs[:, OBS_POS.start : OBS_POS.start + 2].numpy()
+    assert np.all(np.abs(xy[:, 1] - origins[:, 1]) < 0.15)
+    assert np.all((xy[:, 0] - origins[:, 0] > -0.15) & (xy[:, 0] - origins[:, 0] < 0.3))
+    # a walk far too short demotes the envs that walked their own level, not the reviewers
+    c.walked_steps[:] = 100
+    c.episode_distance[:] = 0.0
+    c.reset()
+    assert torch.equal(c.terrain_level, torch.where(reviewing, 3, 2))
+    again = Core(config(terrain_levels=levels), 64, seed=4)
+    again.reset()
+    assert torch.equal(again.curriculum.reviewing, reviewing)  # the same keys, the same draws
+    assert torch.equal(again.curriculum.review_level, review_level)
+    plain = Core(config(terrain_levels=TerrainLevels(**{**vars(levels), "review": 0.0})), 64)
+    plain.reset()
+    assert not plain.curriculum.reviewing.any()
+
+
 def test_checkpoints_carry_the_curriculum(tmp_path):
     import contextlib
     import dataclasses
