@@ -54,9 +54,9 @@ control period (``core.control_dt``: ``core.decimation`` physics substeps):
   t  thread scaling: b and a on 1 thread and on all cores, all four in one process,
      alternating
   s  two default rwalk-train runs of N envs sharing the machine: seconds per iteration
-     of one alone (idle OpenMP threads sleeping, as the trainers set it, and with
-     libgomp's own wait policy), then of each of two started side by side, and their
-     speed over the one alone's (rwalk.bench.sharing; threads: the trainings' own)
+     of one alone (as the trainers run, and with --no-share-cores), then of each of two
+     started side by side, and their speed over the one alone's (rwalk.bench.sharing;
+     threads: the trainings' own)
   r  the cost of the robust training's world: rsl-rl's env step (RslRlVecEnv.step,
      random actions, its observation groups built, no PPO) on three envs of the same
      N in one process, alternating: the plain training env (one rough world), the

@@ -156,7 +156,7 @@ def summary(results: list[dict]) -> list[str]:
             out.append(
                 f"(s) two default trainings of N={r['num_envs']} side by side: each at {speeds} "
                 f"of one alone ({r['alone_s_per_iteration']:.2f} s per iteration alone; with "
-                f"libgomp's own wait policy {r['alone_spinning_s_per_iteration']:.2f} s)"
+                f"--no-share-cores {r['alone_fixed_threads_s_per_iteration']:.2f} s)"
             )
     for r in results:
         if r["mode"] == "r":

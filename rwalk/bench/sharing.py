@@ -3,9 +3,11 @@
 A default ``rwalk-train`` of N envs runs alone, then two of them start side by side;
 each one's seconds per iteration (rsl-rl's collection plus learning time of every
 iteration after the first ``SKIP``, median) are compared with the run alone's. The
-run alone is timed twice, with idle OpenMP threads sleeping (``rwalk.threads``: what
-the trainers do) and with libgomp's own wait policy (what they did before), so that
-the sharing gain is seen beside its cost to one training alone.
+run alone is timed twice, as the trainers run (torch's threads follow what other
+processes leave free: ``rwalk.threads.SharedCores``) and with ``--no-share-cores``
+(always all threads: what they did before), so that the sharing is seen beside what it
+costs one training alone. Every run keeps libgomp's own wait policy
+(``OMP_WAIT_POLICY`` is left unset).
 """
 
 from __future__ import annotations
@@ -49,28 +51,26 @@ def seconds_per_iteration(log_dir: Path) -> float:
 
 
 def measure(n: int, iterations: int = ITERATIONS, flags: tuple[str, ...] = ()) -> dict:
-    """(s) at N envs: seconds per iteration alone (trainers' wait policy, and libgomp's
-    own), of each of two side by side, and each one's speed over the alone run's.
-    ``flags``: more rwalk-train flags (the default training's: none)."""
-    sleeping = os.environ | {"OMP_WAIT_POLICY": "PASSIVE"}
-    spinning = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
-    spinning["OMP_WAIT_POLICY"] = ""  # set, so the trainers keep libgomp's default
+    """(s) at N envs: seconds per iteration alone (as the trainers run, and with
+    --no-share-cores), of each of two side by side, and each one's speed over the alone
+    run's. ``flags``: more rwalk-train flags (the default training's: none)."""
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
     with tempfile.TemporaryDirectory() as folder:
         root = Path(folder)
-        for name, env in (("alone", sleeping), ("alone_spinning", spinning)):
-            _finish(_start(n, root / name, iterations, env, flags))
-        pair = [_start(n, root / f"side_{i}", iterations, sleeping, flags) for i in range(2)]
+        _finish(_start(n, root / "alone", iterations, env, flags))
+        _finish(_start(n, root / "alone_fixed", iterations, env, (*flags, "--no-share-cores")))
+        pair = [_start(n, root / f"side_{i}", iterations, env, flags) for i in range(2)]
         for process in pair:
             _finish(process)
         alone = seconds_per_iteration(root / "alone")
-        spinning_alone = seconds_per_iteration(root / "alone_spinning")
+        fixed = seconds_per_iteration(root / "alone_fixed")
         side = [seconds_per_iteration(root / f"side_{i}") for i in range(2)]
     return {
         "num_envs": n,
         "iterations": iterations,
         "alone_s_per_iteration": alone,
-        "alone_spinning_s_per_iteration": spinning_alone,
-        "alone_over_spinning": spinning_alone / alone,
+        "alone_fixed_threads_s_per_iteration": fixed,
+        "alone_over_fixed_threads": fixed / alone,
         "side_by_side_s_per_iteration": side,
         "side_by_side_speed": [alone / s for s in side],
     }

@@ -75,6 +75,10 @@ class RunSettings:
     threads: int = 0
     """physics and torch threads (0 = all cores; under torchrun or with several collectors,
     per process: 0 = the machine's cores / its processes)"""
+    share_cores: bool = True
+    """torch on one thread while other processes keep this one's cores busy (two trainings
+    then share the cores instead of fighting over them), on --threads again when they are
+    free (rwalk.threads.SharedCores); --no-share-cores: always on --threads"""
 
     def __post_init__(self) -> None:
         require_at_least(self, 1, "max_iterations", "save_interval")

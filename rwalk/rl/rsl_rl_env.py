@@ -12,6 +12,7 @@ from rwalk import episodes
 from rwalk import mirror as mirrors
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.mirror import Mirror
+from rwalk.threads import SharedCores
 
 #: Groups read with observation noise: the policy's, and a teacher's (it acts on what the
 #: student senses, as it did in its own training).
@@ -77,6 +78,9 @@ class RslRlVecEnv(VecEnv):
         self.max_episode_length = env.config.max_episode_steps
         self.device = "cpu"
         self.cfg = dataclasses.asdict(env.config)
+        self.sharing: SharedCores | None = None
+        """Polled at every step when set (the trainers set it): torch's threads follow what
+        other processes leave of the cores."""
         if not self.core.started:
             self.core.reset()
 
@@ -105,6 +109,8 @@ class RslRlVecEnv(VecEnv):
         )
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        if self.sharing is not None:
+            self.sharing.poll()
         result, ended = episodes.step(self.core, actions)
         extras: dict = {"time_outs": result.truncated}
         if ended is not None:

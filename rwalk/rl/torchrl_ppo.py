@@ -53,6 +53,7 @@ from rwalk.rl.legacy import as_training
 from rwalk.rl.record import read_record, write_record
 from rwalk.rl.torchrl_collect import check_workers, make_collector, make_env, require_backend
 from rwalk.rl.torchrl_config import TorchRLConfig, TorchRLTraining
+from rwalk.threads import SharedCores
 
 __all__ = ["TRAINER", "make_modules", "train"]
 
@@ -260,8 +261,11 @@ def _learn(
     budget = run.max_minutes * 60.0
     started = tick = time.perf_counter()
     checkpoint = Path(run.log_dir) / f"torchrl_{first}.pt"
+    sharing = SharedCores(torch.get_num_threads()) if run.share_cores else None
     for it, batch in enumerate(collector, start=first):  # (N, T) or (collectors, N, T)
         collected = time.perf_counter()
+        if sharing is not None:
+            sharing.poll()
         with torch.no_grad():
             advantage(batch)
         buffer.extend(batch.reshape(-1))

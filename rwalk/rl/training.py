@@ -54,6 +54,7 @@ from rwalk.rl.record import ConfigError, decode_training, read_record, record_of
 from rwalk.rl.rsl_rl_env import RslRlVecEnv
 from rwalk.rl.runner import SafeDistillationRunner, SafeRunner
 from rwalk.starts import SettleError
+from rwalk.threads import SharedCores
 from rwalk.validation import show_flag
 
 PER_RANK_FLAGS = ("threads",)
@@ -421,6 +422,8 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
             )
         say(f"building {args.num_envs} envs (settling their starts) ...", flush=True)
         env = make_env(mine, teacher)
+        if mine.run.share_cores:
+            env.sharing = SharedCores(torch.get_num_threads())
         say(f"  ready in {time.perf_counter() - clock:.1f} s", flush=True)
         runner_class = SafeDistillationRunner if teacher else SafeRunner
         writes = str(log_dir) if group.main else None

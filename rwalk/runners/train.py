@@ -54,10 +54,6 @@ it marks a run in progress.
 
 from __future__ import annotations
 
-from rwalk.threads import share_cores
-
-share_cores()  # before torch loads: idle OpenMP threads sleep, so that runs share a machine
-
 from rwalk.cli import command, one_line_errors
 from rwalk.rl import distributed, training
 from rwalk.rl.command import parse_training

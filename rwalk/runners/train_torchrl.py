@@ -37,10 +37,6 @@ cores // collectors); policy weights go to the workers after every update.
 
 from __future__ import annotations
 
-from rwalk.threads import share_cores
-
-share_cores()  # before torch loads: idle OpenMP threads sleep, so that runs share a machine
-
 from rwalk.cli import command, one_line_errors
 from rwalk.rl.checkpoints import CheckpointError, RunSetupError
 from rwalk.rl.command import parse_training
