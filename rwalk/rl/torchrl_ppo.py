@@ -261,7 +261,9 @@ def _learn(
     budget = run.max_minutes * 60.0
     started = tick = time.perf_counter()
     checkpoint = Path(run.log_dir) / f"torchrl_{first}.pt"
-    sharing = SharedCores(torch.get_num_threads()) if run.share_cores else None
+    # with worker processes, their collecting is this process's share, not another's
+    alone = run.share_cores and ppo.collectors == 1
+    sharing = SharedCores(torch.get_num_threads()) if alone else None
     for it, batch in enumerate(collector, start=first):  # (N, T) or (collectors, N, T)
         collected = time.perf_counter()
         if sharing is not None:

@@ -422,7 +422,7 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
             )
         say(f"building {args.num_envs} envs (settling their starts) ...", flush=True)
         env = make_env(mine, teacher)
-        if mine.run.share_cores:
+        if mine.run.share_cores and not group.distributed:  # ranks: their --threads share
             env.sharing = SharedCores(torch.get_num_threads())
         say(f"  ready in {time.perf_counter() - clock:.1f} s", flush=True)
         runner_class = SafeDistillationRunner if teacher else SafeRunner
