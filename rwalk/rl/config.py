@@ -79,8 +79,7 @@ class RunSettings:
     """torch on one thread while other processes keep this one's cores busy (two trainings
     then share the cores instead of fighting over them), on --threads again when they are
     free (rwalk.threads.SharedCores; not under torchrun or with several collectors, whose
-    processes keep their shares);
-    --no-share-cores: always on --threads"""
+    processes keep their shares); --no-share-cores: always on --threads"""
 
     def __post_init__(self) -> None:
         require_at_least(self, 1, "max_iterations", "save_interval")
