@@ -79,14 +79,13 @@ class SharedCores:
 
     def poll(self) -> None:
         """Set torch's threads by what the others used since the last sample."""
-        import torch
-
-        others = self.others()
-        if others is None or self.threads <= 1:
+        if self.threads <= 1:  # nothing to give back: no need to read /proc
             return
-        if not self.shared and others > self.busy:
-            self.shared = True
-            torch.set_num_threads(1)
-        elif self.shared and others < self.free:
-            self.shared = False
-            torch.set_num_threads(self.threads)
+        others = self.others()
+        if others is None:
+            return
+        if others < self.free if self.shared else others > self.busy:
+            import torch  # here, not at every step
+
+            self.shared = not self.shared
+            torch.set_num_threads(1 if self.shared else self.threads)
