@@ -237,22 +237,12 @@ class PhysicsRandomizer:
         from its end). Shape: (N, K, 12)."""
         self._batch = batch
         self._seed = 0
+        self._torso_mass, self._decimation = float(model.body(TORSO_BODY).mass[0]), k
+        self._per_env = randomization is not None
+        """Whether the model fields of PHYSICS_PARAMS are per env (randomisable)."""
         if randomization is None:
             return
-        torso = model.body(TORSO_BODY)
-        if float(torso.mass[0]) + randomization.payload[0] <= 0:
-            raise ValueError(
-                f"Randomization.payload {randomization.payload!r} leaves the torso "
-                f"({float(torso.mass[0]):g} kg) with no mass"
-            )
-        if randomization.latency[1] > k:
-            raise ValueError(
-                f"Randomization.latency {randomization.latency!r} exceeds one control period "
-                f"({k} substeps)"
-            )
-        ranges = [getattr(randomization, p.range) for p in PHYSICS_PARAMS]
-        self._low = torch.tensor([r[0] for r in ranges], dtype=torch.float64)
-        self._high = torch.tensor([r[1] for r in ranges], dtype=torch.float64)
+        self.set_ranges(randomization)
         arrays = {t.field: None for p in PHYSICS_PARAMS for t in p.targets}
         for name in arrays:
             expanded = batch.expand(name)
@@ -269,6 +259,33 @@ class PhysicsRandomizer:
                 self._writes.append(
                     (column, param.op, arrays[target.field], index, nominal.reshape(-1)[index])
                 )
+
+    def set_ranges(self, randomization) -> None:
+        """Draw from ``randomization``'s ranges from the next reset on (a training stage
+        may narrow them): running episodes keep their physics; a latency range of (0, 0)
+        ends every env's delay at once.
+
+        Raises:
+            ValueError: naming the field, for a payload that leaves the torso without
+                mass or a latency beyond one control period; or if these simulations
+                were built without randomisation (their model fields are not per env).
+        """
+        if not self._per_env:
+            raise ValueError("these simulations were built without physics randomisation")
+        if self._torso_mass + randomization.payload[0] <= 0:
+            raise ValueError(
+                f"Randomization.payload {randomization.payload!r} leaves the torso "
+                f"({self._torso_mass:g} kg) with no mass"
+            )
+        if randomization.latency[1] > self._decimation:
+            raise ValueError(
+                f"Randomization.latency {randomization.latency!r} exceeds one control period "
+                f"({self._decimation} substeps)"
+            )
+        ranges = [getattr(randomization, p.range) for p in PHYSICS_PARAMS]
+        self._low = torch.tensor([r[0] for r in ranges], dtype=torch.float64)
+        self._high = torch.tensor([r[1] for r in ranges], dtype=torch.float64)
+        self.randomization = randomization
 
     def seed(self, seed: int) -> None:
         """Key the draws by ``seed`` (env i draws from seed + i) and restart them."""

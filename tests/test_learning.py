@@ -12,6 +12,7 @@ import pytest
 import torch
 from test_distributed import TORCHRUN, environment
 
+from rwalk.randomization import NOMINAL_PARAMS, PhysicsRandomizer, Randomization
 from rwalk.rl.checkpoints import checkpoint_files, load_checkpoint
 from rwalk.runners import play, train
 from rwalk.tensorboard_events import read_scalars
@@ -118,6 +119,7 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
             ["--warm-start", "x.pt", "--distill", "y.pt"],
             "--warm-start and --distill do not go together",
         ),
+        (["--nominal-physics-iterations", "-1"], "--nominal-physics-iterations must be >= 0"),
     ],
 )
 def test_bad_pairings_are_usage_errors(flags, message, capsys):
@@ -216,3 +218,38 @@ def test_a_warm_start_that_does_not_fit_is_named(teacher, tmp_path):
     train.main([*TINY, "--distill", str(teacher), "--max-iterations", "1",
                 "--log-dir", str(student)])  # fmt: skip
     assert "a distilled student" in refused("--warm-start", str(student))
+
+
+def test_the_last_iterations_draw_the_models_physics(tmp_path, monkeypatch, capsys):
+    drawn = []  # (whether the ranges were narrowed, the physics drawn) at every reset
+    reset = PhysicsRandomizer.reset
+
+    def spy(self, rows, settle_tail):
+        reset(self, rows, settle_tail)
+        drawn.append((self.randomization == Randomization.nominal(), self.params[rows].clone()))
+
+    monkeypatch.setattr(PhysicsRandomizer, "reset", spy)
+    cut = TINY.index("--max-episode-steps")
+    short = [*TINY[:cut], *TINY[cut + 2 :], "--max-episode-steps", "4"]  # frequent resets
+    run = tmp_path / "run"
+    train.main([*short, "--max-iterations", "3", "--nominal-physics-iterations", "1",
+                "--log-dir", str(run)])  # fmt: skip
+    assert "iteration 2: new episodes draw the model's own physics" in capsys.readouterr().out
+    nominal = torch.tensor(NOMINAL_PARAMS, dtype=torch.float64)
+    before = [p for narrowed, p in drawn if not narrowed]
+    after = [p for narrowed, p in drawn if narrowed]
+    assert before and after and drawn[-1][0]  # randomised first, narrowed to the end
+    assert all(torch.equal(p, nominal.expand_as(p)) for p in after)
+    assert not all(torch.equal(p, nominal.expand_as(p)) for p in before)
+    # the iterations before the stage are the plain run's, bit for bit
+    plain = tmp_path / "plain"
+    train.main([*short, "--max-iterations", "2", "--log-dir", str(plain)])
+    ours, theirs = load_checkpoint(run / "model_1.pt"), load_checkpoint(plain / "model_1.pt")
+    for name, tensor in theirs["actor_state_dict"].items():
+        assert torch.equal(ours["actor_state_dict"][name], tensor), name
+    # resumed past its start (the last 1 of 4), it narrows them at its first iteration
+    drawn.clear()
+    train.main([*short, "--max-iterations", "4", "--nominal-physics-iterations", "1",
+                "--resume", str(run), "--log-dir", str(run)])  # fmt: skip
+    assert "iteration 3: new episodes draw the model's own physics" in capsys.readouterr().out
+    assert drawn[-1][0]

@@ -121,6 +121,20 @@ def test_fixed_values_and_a_new_draw_at_each_reset():
     assert not torch.equal(r.physics.params[1], before[1])
 
 
+def test_narrowed_ranges_reach_new_episodes_only():
+    c = core(n=2, randomization=Randomization())
+    before = c.physics.params.clone()
+    c.physics.set_ranges(Randomization.nominal())
+    c.reset(np.array([1]))
+    assert torch.equal(c.physics.params[0], before[0])  # a running episode keeps its physics
+    assert torch.equal(c.physics.params[1], torch.tensor(NOMINAL_PARAMS, dtype=torch.float64))
+    assert c.physics.latency[1] == 0 and c.physics.randomization == Randomization.nominal()
+    with pytest.raises(ValueError, match=r"payload \(-0.6, 0.0\) leaves the torso"):
+        c.physics.set_ranges(Randomization(payload=(-0.6, 0.0)))
+    with pytest.raises(ValueError, match="built without physics randomisation"):
+        core(n=1).physics.set_ranges(Randomization.nominal())
+
+
 def test_nominal_randomization_changes_no_bit():
     plain = core(n=2, seed=3)
     nominal = core(n=2, seed=3, randomization=Randomization.nominal())

@@ -178,6 +178,11 @@ class TrainConfig:
     """augment PPO's minibatches with the left-right mirrored states and actions (rsl-rl's
     symmetry augmentation) where rsl-rl allows it: PPO with an MLP actor (recurrent actors
     and distilled students train without it; docs/learning.md)"""
+    nominal_physics_iterations: int = 0
+    """the last N of --max-iterations draw every new episode's physics at the model's own
+    values (each --env.randomization range narrowed to it, latency 0), the optimizer,
+    curriculum, terrain, pushes and noise going on (docs/learning.md); without physics
+    randomisation nothing changes"""
     student_iterations: int = 0
     """with --teacher: when the teacher is trained, distil it into a blind student for this
     many iterations in LOG_DIR/student (both stages in one command; an interrupted student
@@ -189,9 +194,10 @@ class TrainConfig:
         require_choice(self, "actor", ACTORS)
         require_choice(self, "student_actor", ACTORS)
         require_at_least(self, 1, "rnn_hidden_dim", "gradient_length")
-        require_at_least(self, 0, "student_iterations")
+        require_at_least(self, 0, "student_iterations", "nominal_physics_iterations")
         require_at_most(self, MAX_WIDTH, "rnn_hidden_dim")
-        require_at_most(self, MAX_ITERATIONS, "gradient_length", "student_iterations")
+        require_at_most(self, MAX_ITERATIONS, "gradient_length", "student_iterations",
+                        "nominal_physics_iterations")  # fmt: skip
         if self.student_iterations and not self.teacher:
             raise ValueError("--student-iterations needs --teacher: the student is distilled "
                              "from the teacher this run trains")  # fmt: skip

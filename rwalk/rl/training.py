@@ -448,7 +448,8 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
             say(f"resumed from {resume[0]}: next iteration {runner.current_learning_iteration}")
         if group.main:
             write_record(log_dir / "config.json", args, TRAINER)
-        checkpoint = _learn(args.run, runner, group, clock)
+        nominal_from = args.run.max_iterations - args.train.nominal_physics_iterations
+        checkpoint = _learn(args.run, runner, group, clock, nominal_from)
         if args.run.logger == "wandb" and group.main:
             from rwalk.rl.wandb_writer import WandbWriter
 
@@ -459,19 +460,32 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
     return checkpoint, args
 
 
-def _learn(args: RunConfig, runner: SafeRunner, group: distributed.Group, clock: float) -> Path:
+def _learn(
+    args: RunConfig,
+    runner: SafeRunner,
+    group: distributed.Group,
+    clock: float,
+    nominal_from: int,
+) -> Path:
     """``runner.learn`` in chunks up to each checkpoint, until --max-iterations or the
-    time budget; returns the last checkpoint's path."""
+    time budget; from iteration ``nominal_from`` on (--nominal-physics-iterations) new
+    episodes draw the model's own physics. Returns the last checkpoint's path."""
     say = print if group.main else lambda *_, **__: None
     first = runner.current_learning_iteration
     budget = args.max_minutes * 60.0
     learning_since = time.perf_counter()  # per-iteration time excludes building the envs
     checkpoint = Path(args.log_dir) / f"model_{first}.pt"
+    physics = runner.env.core.physics
     while runner.current_learning_iteration < args.max_iterations:
         it = runner.current_learning_iteration
         # One learn() call up to the next checkpoint: rsl-rl saves the multiples of
         # save_interval in its loop and the call's last iteration after it.
         last = min(-(-it // args.save_interval) * args.save_interval, args.max_iterations - 1)
+        if it < nominal_from:  # the stage starts a call of its own
+            last = min(last, nominal_from - 1)
+        elif physics.randomization is not None and it == max(nominal_from, first):
+            physics.set_ranges(type(physics.randomization).nominal())
+            say(f"[rwalk] iteration {it}: new episodes draw the model's own physics", flush=True)
         runner.learn(num_learning_iterations=last + 1 - it, init_at_random_ep_len=it == first)
         if runner.logger.writer is not None:  # rank 0's; learn() opens one each call
             runner.logger.writer.close()
