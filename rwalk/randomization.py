@@ -137,6 +137,8 @@ _CENTRE = torch.tensor([p.centre for p in PHYSICS_PARAMS], dtype=torch.float64)
 _SPREAD = torch.tensor([p.spread for p in PHYSICS_PARAMS], dtype=torch.float64)
 _FIRST = {p.range: p for p in reversed(PHYSICS_PARAMS)}  # the first row of each range field
 _RANGES = tuple(dict.fromkeys(p.range for p in PHYSICS_PARAMS))
+#: The ``Randomization`` fields (one range each), in PHYSICS_PARAMS order.
+PHYSICS_RANGES = _RANGES
 
 
 def check_range(

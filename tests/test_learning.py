@@ -120,6 +120,7 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
             "--warm-start and --distill do not go together",
         ),
         (["--nominal-physics-iterations", "-1"], "--nominal-physics-iterations must be >= 0"),
+        (["--nominal-physics-keep", "mass"], "--nominal-physics-keep names ranges of"),
     ],
 )
 def test_bad_pairings_are_usage_errors(flags, message, capsys):
@@ -253,3 +254,27 @@ def test_the_last_iterations_draw_the_models_physics(tmp_path, monkeypatch, caps
                 "--resume", str(run), "--log-dir", str(run)])  # fmt: skip
     assert "iteration 3: new episodes draw the model's own physics" in capsys.readouterr().out
     assert drawn[-1][0]
+
+
+def test_the_stage_keeps_the_ranges_it_is_told_to(tmp_path, monkeypatch, capsys):
+    drawn = []  # (ranges, physics drawn) at every reset
+    reset = PhysicsRandomizer.reset
+
+    def spy(self, rows, settle_tail):
+        reset(self, rows, settle_tail)
+        drawn.append((self.randomization, self.params[rows].clone()))
+
+    monkeypatch.setattr(PhysicsRandomizer, "reset", spy)
+    cut = TINY.index("--max-episode-steps")
+    train.main([*TINY[:cut], *TINY[cut + 2 :], "--max-episode-steps", "4",
+                "--max-iterations", "2", "--nominal-physics-iterations", "1",
+                "--nominal-physics-keep", "friction",
+                "--log-dir", str(tmp_path / "run")])  # fmt: skip
+    out = capsys.readouterr().out
+    assert "iteration 1: new episodes draw the model's own physics but for friction" in out
+    stage = Randomization.nominal(friction=Randomization().friction)
+    after = torch.cat([p for ranges, p in drawn if ranges == stage])
+    nominal = torch.tensor(NOMINAL_PARAMS, dtype=torch.float64)
+    assert len(after) > 1 and drawn[-1][0] == stage
+    assert torch.equal(after[:, 1:], nominal[1:].expand(len(after), -1))  # all but friction
+    assert len(set(after[:, 0].tolist())) > 1  # friction still drawn

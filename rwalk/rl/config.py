@@ -26,6 +26,7 @@ from tyro.conf import OmitArgPrefixes
 from rwalk.config import MAX_ENVS, MAX_THREADS, EnvConfig
 from rwalk.observations import PRIVILEGED_PIECES, piece_catalog
 from rwalk.presets import SETTLE_POOL_FRACTION, training_env
+from rwalk.randomization import PHYSICS_RANGES
 from rwalk.rl.distributed import DEFAULT_TIMEOUT_S
 from rwalk.rng import SEED_LIMIT
 from rwalk.tasks.registry import get_task
@@ -183,6 +184,9 @@ class TrainConfig:
     values (each --env.randomization range narrowed to it, latency 0), the optimizer,
     curriculum, terrain, pushes and noise going on (docs/learning.md); without physics
     randomisation nothing changes"""
+    nominal_physics_keep: tuple[str, ...] = ()
+    """--nominal-physics-iterations: the --env.randomization ranges that stay as they are
+    in that stage (for example friction)"""
     student_iterations: int = 0
     """with --teacher: when the teacher is trained, distil it into a blind student for this
     many iterations in LOG_DIR/student (both stages in one command; an interrupted student
@@ -198,6 +202,10 @@ class TrainConfig:
         require_at_most(self, MAX_WIDTH, "rnn_hidden_dim")
         require_at_most(self, MAX_ITERATIONS, "gradient_length", "student_iterations",
                         "nominal_physics_iterations")  # fmt: skip
+        for name in self.nominal_physics_keep:
+            if name not in PHYSICS_RANGES:
+                raise ValueError(f"--nominal-physics-keep names ranges of --env.randomization "
+                                 f"({', '.join(PHYSICS_RANGES)}), got {name!r}")  # fmt: skip
         if self.student_iterations and not self.teacher:
             raise ValueError("--student-iterations needs --teacher: the student is distilled "
                              "from the teacher this run trains")  # fmt: skip

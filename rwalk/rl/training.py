@@ -449,7 +449,8 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
         if group.main:
             write_record(log_dir / "config.json", args, TRAINER)
         nominal_from = args.run.max_iterations - args.train.nominal_physics_iterations
-        checkpoint = _learn(args.run, runner, group, clock, nominal_from)
+        checkpoint = _learn(args.run, runner, group, clock, nominal_from,
+                            args.train.nominal_physics_keep)  # fmt: skip
         if args.run.logger == "wandb" and group.main:
             from rwalk.rl.wandb_writer import WandbWriter
 
@@ -466,10 +467,12 @@ def _learn(
     group: distributed.Group,
     clock: float,
     nominal_from: int,
+    keep: tuple[str, ...] = (),
 ) -> Path:
     """``runner.learn`` in chunks up to each checkpoint, until --max-iterations or the
     time budget; from iteration ``nominal_from`` on (--nominal-physics-iterations) new
-    episodes draw the model's own physics. Returns the last checkpoint's path."""
+    episodes draw the model's own physics but for the ranges named in ``keep``. Returns
+    the last checkpoint's path."""
     say = print if group.main else lambda *_, **__: None
     first = runner.current_learning_iteration
     budget = args.max_minutes * 60.0
@@ -484,8 +487,11 @@ def _learn(
         if it < nominal_from:  # the stage starts a call of its own
             last = min(last, nominal_from - 1)
         elif physics.randomization is not None and it == max(nominal_from, first):
-            physics.set_ranges(type(physics.randomization).nominal())
-            say(f"[rwalk] iteration {it}: new episodes draw the model's own physics", flush=True)
+            ranges = physics.randomization
+            physics.set_ranges(type(ranges).nominal(**{k: getattr(ranges, k) for k in keep}))
+            but = f" but for {', '.join(keep)}" if keep else ""
+            say(f"[rwalk] iteration {it}: new episodes draw the model's own physics{but}",
+                flush=True)  # fmt: skip
         runner.learn(num_learning_iterations=last + 1 - it, init_at_random_ep_len=it == first)
         if runner.logger.writer is not None:  # rank 0's; learn() opens one each call
             runner.logger.writer.close()
