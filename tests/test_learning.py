@@ -221,43 +221,10 @@ def test_a_warm_start_that_does_not_fit_is_named(teacher, tmp_path):
     assert "a distilled student" in refused("--warm-start", str(student))
 
 
-def test_the_last_iterations_draw_the_models_physics(tmp_path, monkeypatch, capsys):
-    drawn = []  # (whether the ranges were narrowed, the physics drawn) at every reset
-    reset = PhysicsRandomizer.reset
-
-    def spy(self, rows, settle_tail):
-        reset(self, rows, settle_tail)
-        drawn.append((self.randomization == Randomization.nominal(), self.params[rows].clone()))
-
-    monkeypatch.setattr(PhysicsRandomizer, "reset", spy)
-    cut = TINY.index("--max-episode-steps")
-    short = [*TINY[:cut], *TINY[cut + 2 :], "--max-episode-steps", "4"]  # frequent resets
-    run = tmp_path / "run"
-    train.main([*short, "--max-iterations", "3", "--nominal-physics-iterations", "1",
-                "--log-dir", str(run)])  # fmt: skip
-    assert "iteration 2: new episodes draw the model's own physics" in capsys.readouterr().out
-    nominal = torch.tensor(NOMINAL_PARAMS, dtype=torch.float64)
-    before = [p for narrowed, p in drawn if not narrowed]
-    after = [p for narrowed, p in drawn if narrowed]
-    assert before and after and drawn[-1][0]  # randomised first, narrowed to the end
-    assert all(torch.equal(p, nominal.expand_as(p)) for p in after)
-    assert not all(torch.equal(p, nominal.expand_as(p)) for p in before)
-    # the iterations before the stage are the plain run's, bit for bit
-    plain = tmp_path / "plain"
-    train.main([*short, "--max-iterations", "2", "--log-dir", str(plain)])
-    ours, theirs = load_checkpoint(run / "model_1.pt"), load_checkpoint(plain / "model_1.pt")
-    for name, tensor in theirs["actor_state_dict"].items():
-        assert torch.equal(ours["actor_state_dict"][name], tensor), name
-    # resumed past its start (the last 1 of 4), it narrows them at its first iteration
-    drawn.clear()
-    train.main([*short, "--max-iterations", "4", "--nominal-physics-iterations", "1",
-                "--resume", str(run), "--log-dir", str(run)])  # fmt: skip
-    assert "iteration 3: new episodes draw the model's own physics" in capsys.readouterr().out
-    assert drawn[-1][0]
-
-
-def test_the_stage_keeps_the_ranges_it_is_told_to(tmp_path, monkeypatch, capsys):
-    drawn = []  # (ranges, physics drawn) at every reset
+@pytest.fixture
+def draws(monkeypatch) -> list:
+    """(ranges, physics drawn) at every reset of every env of the runs that follow."""
+    drawn = []
     reset = PhysicsRandomizer.reset
 
     def spy(self, rows, settle_tail):
@@ -265,16 +232,48 @@ def test_the_stage_keeps_the_ranges_it_is_told_to(tmp_path, monkeypatch, capsys)
         drawn.append((self.randomization, self.params[rows].clone()))
 
     monkeypatch.setattr(PhysicsRandomizer, "reset", spy)
-    cut = TINY.index("--max-episode-steps")
-    train.main([*TINY[:cut], *TINY[cut + 2 :], "--max-episode-steps", "4",
-                "--max-iterations", "2", "--nominal-physics-iterations", "1",
+    return drawn
+
+
+#: TINY with 4-step episodes: every env resets often.
+_CUT = TINY.index("--max-episode-steps")
+SHORT = [*TINY[:_CUT], *TINY[_CUT + 2 :], "--max-episode-steps", "4"]
+NOMINAL = torch.tensor(NOMINAL_PARAMS, dtype=torch.float64)
+
+
+def test_the_last_iterations_draw_the_models_physics(tmp_path, draws, capsys):
+    run = tmp_path / "run"
+    train.main([*SHORT, "--max-iterations", "3", "--nominal-physics-iterations", "1",
+                "--log-dir", str(run)])  # fmt: skip
+    assert "iteration 2: new episodes draw the model's own physics" in capsys.readouterr().out
+    narrowed = [ranges == Randomization.nominal() for ranges, _ in draws]
+    before = [p for (_, p), n in zip(draws, narrowed, strict=True) if not n]
+    after = [p for (_, p), n in zip(draws, narrowed, strict=True) if n]
+    assert before and after and narrowed[-1]  # randomised first, narrowed to the end
+    assert all(torch.equal(p, NOMINAL.expand_as(p)) for p in after)
+    assert not all(torch.equal(p, NOMINAL.expand_as(p)) for p in before)
+    # the iterations before the stage are the plain run's, bit for bit
+    plain = tmp_path / "plain"
+    train.main([*SHORT, "--max-iterations", "2", "--log-dir", str(plain)])
+    ours, theirs = load_checkpoint(run / "model_1.pt"), load_checkpoint(plain / "model_1.pt")
+    for name, tensor in theirs["actor_state_dict"].items():
+        assert torch.equal(ours["actor_state_dict"][name], tensor), name
+    # resumed past its start (the last 1 of 4), it narrows them at its first iteration
+    draws.clear()
+    train.main([*SHORT, "--max-iterations", "4", "--nominal-physics-iterations", "1",
+                "--resume", str(run), "--log-dir", str(run)])  # fmt: skip
+    assert "iteration 3: new episodes draw the model's own physics" in capsys.readouterr().out
+    assert draws[-1][0] == Randomization.nominal()
+
+
+def test_the_stage_keeps_the_ranges_it_is_told_to(tmp_path, draws, capsys):
+    train.main([*SHORT, "--max-iterations", "2", "--nominal-physics-iterations", "1",
                 "--nominal-physics-keep", "friction",
                 "--log-dir", str(tmp_path / "run")])  # fmt: skip
     out = capsys.readouterr().out
     assert "iteration 1: new episodes draw the model's own physics but for friction" in out
     stage = Randomization.nominal(friction=Randomization().friction)
-    after = torch.cat([p for ranges, p in drawn if ranges == stage])
-    nominal = torch.tensor(NOMINAL_PARAMS, dtype=torch.float64)
-    assert len(after) > 1 and drawn[-1][0] == stage
-    assert torch.equal(after[:, 1:], nominal[1:].expand(len(after), -1))  # all but friction
+    after = torch.cat([p for ranges, p in draws if ranges == stage])
+    assert len(after) > 1 and draws[-1][0] == stage
+    assert torch.equal(after[:, 1:], NOMINAL[1:].expand(len(after), -1))  # all but friction
     assert len(set(after[:, 0].tolist())) > 1  # friction still drawn
