@@ -136,9 +136,8 @@ NOMINAL_PARAMS = tuple(p.nominal for p in PHYSICS_PARAMS)
 _CENTRE = torch.tensor([p.centre for p in PHYSICS_PARAMS], dtype=torch.float64)
 _SPREAD = torch.tensor([p.spread for p in PHYSICS_PARAMS], dtype=torch.float64)
 _FIRST = {p.range: p for p in reversed(PHYSICS_PARAMS)}  # the first row of each range field
-_RANGES = tuple(dict.fromkeys(p.range for p in PHYSICS_PARAMS))
 #: The ``Randomization`` fields (one range each), in PHYSICS_PARAMS order.
-PHYSICS_RANGES = _RANGES
+PHYSICS_RANGES = tuple(dict.fromkeys(p.range for p in PHYSICS_PARAMS))
 
 
 def check_range(
@@ -178,14 +177,14 @@ class _RandomizationMethods:
     """
 
     def __post_init__(self) -> None:
-        for name in _RANGES:
+        for name in PHYSICS_RANGES:
             row = _FIRST[name]
             check_range(self, name, row.minimum, row.above, integer=row.op == "latency")
 
     @classmethod
     def nominal(cls, **ranges):
         """The model's own values (nothing randomised), with ``ranges`` overriding fields."""
-        base = {name: (_FIRST[name].nominal,) * 2 for name in _RANGES}
+        base = {name: (_FIRST[name].nominal,) * 2 for name in PHYSICS_RANGES}
         return cls(**(base | ranges))
 
 
@@ -198,12 +197,12 @@ def _range_field(name: str) -> tuple:
 #: The config of physics randomisation: its fields are the ranges of PHYSICS_PARAMS.
 Randomization = dataclasses.make_dataclass(
     "Randomization",
-    [_range_field(name) for name in _RANGES],
+    [_range_field(name) for name in PHYSICS_RANGES],
     bases=(_RandomizationMethods,),
     frozen=True,
     namespace={"__module__": __name__, "__qualname__": "Randomization",
                "__doc__": _RandomizationMethods.__doc__ + "\n    Attributes:\n" + "".join(
-                   f"        {name}: (min, max). {_FIRST[name].doc}\n" for name in _RANGES)},
+                   f"        {name}: (min, max). {_FIRST[name].doc}\n" for name in PHYSICS_RANGES)},
 )  # fmt: skip
 PhysicsRandomization = Randomization
 
