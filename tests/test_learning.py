@@ -244,7 +244,7 @@ NOMINAL = torch.tensor(NOMINAL_PARAMS, dtype=torch.float64)
 def test_the_last_iterations_draw_the_models_physics(tmp_path, draws, capsys):
     run = tmp_path / "run"
     train.main([*SHORT, "--max-iterations", "3", "--nominal-physics-iterations", "1",
-                "--log-dir", str(run)])  # fmt: skip
+                "--nominal-physics-keep", "--log-dir", str(run)])  # fmt: skip
     assert "iteration 2: new episodes draw the model's own physics" in capsys.readouterr().out
     narrowed = [ranges == Randomization.nominal() for ranges, _ in draws]
     before = [p for (_, p), n in zip(draws, narrowed, strict=True) if not n]
@@ -254,7 +254,8 @@ def test_the_last_iterations_draw_the_models_physics(tmp_path, draws, capsys):
     assert not all(torch.equal(p, NOMINAL.expand_as(p)) for p in before)
     # the iterations before the stage are the plain run's, bit for bit
     plain = tmp_path / "plain"
-    train.main([*SHORT, "--max-iterations", "2", "--log-dir", str(plain)])
+    train.main([*SHORT, "--max-iterations", "2", "--nominal-physics-iterations", "0",
+                "--log-dir", str(plain)])  # fmt: skip
     ours, theirs = load_checkpoint(run / "model_1.pt"), load_checkpoint(plain / "model_1.pt")
     for name, tensor in theirs["actor_state_dict"].items():
         assert torch.equal(ours["actor_state_dict"][name], tensor), name
@@ -266,12 +267,10 @@ def test_the_last_iterations_draw_the_models_physics(tmp_path, draws, capsys):
     assert draws[-1][0] == Randomization.nominal()
 
 
-def test_the_stage_keeps_the_ranges_it_is_told_to(tmp_path, draws, capsys):
-    train.main([*SHORT, "--max-iterations", "2", "--nominal-physics-iterations", "1",
-                "--nominal-physics-keep", "friction",
-                "--log-dir", str(tmp_path / "run")])  # fmt: skip
+def test_by_default_the_last_third_keeps_only_friction_randomised(tmp_path, draws, capsys):
+    train.main([*SHORT, "--max-iterations", "3", "--log-dir", str(tmp_path / "run")])
     out = capsys.readouterr().out
-    assert "iteration 1: new episodes draw the model's own physics but for friction" in out
+    assert "iteration 2: new episodes draw the model's own physics but for friction" in out
     stage = Randomization.nominal(friction=Randomization().friction)
     after = torch.cat([p for ranges, p in draws if ranges == stage])
     assert len(after) > 1 and draws[-1][0] == stage

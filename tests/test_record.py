@@ -69,12 +69,18 @@ def test_the_env_built_from_the_record_is_the_env_the_run_trained_in(name, tmp_p
 
 def test_the_command_line_builds_what_the_older_flags_built():
     # Bits unchanged: the default training and its --no-robust world, as the schema-1
-    # flags (and presets) built them before the configs became the record.
-    for flags, old in (([], {}), (["--no-robust"], {"robust": False})):
+    # flags (and presets) built them before the configs became the record; one change
+    # since: the default training's last 100 iterations draw the model's physics.
+    for flags, old, stage in (([], {}, 100), (["--no-robust"], {"robust": False}, 0)):
         new = train.parse_args([*SMALL, *flags])
         args = dataclasses.replace(TrainArgs(), num_envs=6, settle_steps=4, max_episode_steps=40,
                                    threads=1, **old)  # fmt: skip
-        assert new == from_flags(args)
+        migrated = from_flags(args)
+        assert migrated.train.nominal_physics_iterations == 0  # the schema-1 code had no stage
+        keep = new.train.nominal_physics_keep
+        staged = dataclasses.replace(migrated.train, nominal_physics_iterations=stage,
+                                     nominal_physics_keep=keep)  # fmt: skip
+        assert new == dataclasses.replace(migrated, train=staged)
         legacy = args.env.config(threads=1)
         assert trace(new.env_config(), 6, 0) == trace(legacy, 6, 0)
 
@@ -101,14 +107,38 @@ def test_an_older_record_is_migrated_to_its_resolved_configs(name, trainer, cls)
 
 def test_a_record_written_before_a_field_existed_reads_that_field_as_its_default(tmp_path):
     # Schema-2 records of this round were written before EnvConfig.shaping,
-    # command_interval and TrainConfig.warm_start existed: a missing field is the default
-    # (off), as it was.
+    # command_interval, TrainConfig.warm_start and nominal_physics_iterations existed: a
+    # missing field is what the run trained with (off).
     data = json.loads((RECORDS / "v1_rwalk_train.migrated.json").read_text())
     del data["env"]["shaping"], data["env"]["command_interval"], data["train"]["warm_start"]
+    del data["train"]["nominal_physics_iterations"]
     (tmp_path / "config.json").write_text(json.dumps(data))
     record = read_record(tmp_path / "config.json", "rsl_rl", Training)
     assert record.env.shaping is None and record.env.command_interval is None
     assert record == read_record(RECORDS / "v1_rwalk_train.json", "rsl_rl", Training)
+    # Also where the default has changed since: the default training ends on a stage at
+    # the model's physics, a record of it written before the field trained without one.
+    data = record_of(train.parse_args(SMALL))
+    assert data["train"].pop("nominal_physics_iterations") == 100
+    (tmp_path / "config.json").write_text(json.dumps(data))
+    assert read_record(tmp_path / "config.json").train.nominal_physics_iterations == 0
+
+
+@pytest.mark.parametrize(
+    ("flags", "stage"),
+    [([], 100), (["--no-robust"], 0), (["--task", "adaptive_gait", "--costs"], 0),
+     (["--nominal-physics-iterations", "0"], 0), (["--nominal-physics-iterations", "7"], 7)],
+)  # fmt: skip
+def test_the_stage_at_the_models_physics_is_the_tasks_own_and_written_out(flags, stage, tmp_path):
+    # residual_walk's robust training ends on 100 iterations at the model's physics but
+    # for friction (docs/learning.md); the adaptive task's and a world without physics
+    # randomisation have none; the record keeps the number, not the rule.
+    training = train.parse_args([*SMALL, *flags])
+    assert training.train.nominal_physics_iterations == stage
+    assert training.train.nominal_physics_keep == (("friction",) if stage else ())
+    write_record(tmp_path / "config.json", training)
+    stored = json.loads((tmp_path / "config.json").read_text())["train"]
+    assert stored["nominal_physics_iterations"] == stage
 
 
 # ------------------------------------------------------------ every nested field is a flag

@@ -262,6 +262,11 @@ def test_save_interval_saves_its_multiples_and_the_last_iteration(tmp_path):
     assert iterations(tmp_path) == [0, 3, 6]
     tiny_train(tmp_path, "--max-iterations", "9", "--save-interval", "3", "--resume", str(tmp_path))
     assert iterations(tmp_path) == [0, 3, 6, 8]
+    # the default's stage at the model's physics (the last third, from iteration 5 of 7
+    # here) starts within a checkpoint's chunk and saves nothing more
+    staged = tmp_path / "staged"
+    tiny_train(staged, "--max-iterations", "7", "--save-interval", "3")
+    assert iterations(staged) == [0, 3, 6]
     for it, path in checkpoint_files(tmp_path):
         assert load_checkpoint(path)["iter"] == it
 

@@ -179,14 +179,16 @@ class TrainConfig:
     """augment PPO's minibatches with the left-right mirrored states and actions (rsl-rl's
     symmetry augmentation) where rsl-rl allows it: PPO with an MLP actor (recurrent actors
     and distilled students train without it; docs/learning.md)"""
-    nominal_physics_iterations: int = 0
+    nominal_physics_iterations: int | None = None
     """the last N of --max-iterations draw every new episode's physics at the model's own
-    values (each --env.randomization range narrowed to it, latency 0), the optimizer,
-    curriculum, terrain, pushes and noise going on (docs/learning.md); without physics
-    randomisation nothing changes"""
-    nominal_physics_keep: tuple[str, ...] = ()
+    values (each --env.randomization range narrowed to it but --nominal-physics-keep's,
+    latency 0), the optimizer, curriculum, terrain, pushes and noise going on
+    (docs/learning.md); None: the task's share of --max-iterations with physics
+    randomisation (Task.nominal_physics_share: residual_walk a third, 100 of the default
+    300; adaptive_gait none), else 0"""
+    nominal_physics_keep: tuple[str, ...] = ("friction",)
     """--nominal-physics-iterations: the --env.randomization ranges that stay as they are
-    in that stage (for example friction)"""
+    in that stage (none: every range narrowed)"""
     student_iterations: int = 0
     """with --teacher: when the teacher is trained, distil it into a blind student for this
     many iterations in LOG_DIR/student (both stages in one command; an interrupted student
@@ -198,10 +200,10 @@ class TrainConfig:
         require_choice(self, "actor", ACTORS)
         require_choice(self, "student_actor", ACTORS)
         require_at_least(self, 1, "rnn_hidden_dim", "gradient_length")
-        require_at_least(self, 0, "student_iterations", "nominal_physics_iterations")
+        stage = () if self.nominal_physics_iterations is None else ("nominal_physics_iterations",)
+        require_at_least(self, 0, "student_iterations", *stage)
         require_at_most(self, MAX_WIDTH, "rnn_hidden_dim")
-        require_at_most(self, MAX_ITERATIONS, "gradient_length", "student_iterations",
-                        "nominal_physics_iterations")  # fmt: skip
+        require_at_most(self, MAX_ITERATIONS, "gradient_length", "student_iterations", *stage)
         for name in self.nominal_physics_keep:
             if name not in PHYSICS_RANGES:
                 raise ValueError(f"--nominal-physics-keep names ranges of --env.randomization "
@@ -449,11 +451,20 @@ def observation_groups(task, env: EnvConfig, train: TrainConfig | None = None
 
 
 def resolved(training: Training) -> Training:
-    """``training`` with its groups written out (``observation_groups``): what its record
-    keeps, so that a later change of the rule never changes how the run is read."""
-    groups = observation_groups(get_task(training.task), training.env, training.train)
-    train = dataclasses.replace(training.train, policy_obs=groups["policy"],
-                                critic_obs=groups["critic"])  # fmt: skip
+    """``training`` with its rules written out: its groups (``observation_groups``) and
+    its stage at the model's physics (``TrainConfig.nominal_physics_iterations``); what
+    its record keeps, so that a later change of a rule never changes how the run is read."""
+    task = get_task(training.task)
+    groups = observation_groups(task, training.env, training.train)
+    stage = training.train.nominal_physics_iterations
+    if stage is None:
+        share = task.nominal_physics_share if training.env.randomization is not None else 0
+        stage = round(share * training.run.max_iterations)
+    keep = training.train.nominal_physics_keep if stage else ()  # no stage keeps nothing
+    train = dataclasses.replace(
+        training.train, policy_obs=groups["policy"], critic_obs=groups["critic"],
+        nominal_physics_iterations=stage, nominal_physics_keep=keep,
+    )  # fmt: skip
     return dataclasses.replace(training, train=train)
 
 
@@ -473,6 +484,12 @@ def student_training(teacher: Training) -> Training:
         run_name=f"{teacher.run.run_name or Path(teacher.run.log_dir).name}-student",
     )  # fmt: skip
     return resolved(dataclasses.replace(teacher, train=train, run=run))
+
+
+#: TrainConfig's fields whose default changed after runs were recorded without them (a
+#: schema-2 record written before the field, every schema-1 record): the value such a
+#: run trained with.
+PREDATING = {"nominal_physics_iterations": 0}
 
 
 #: Fields that may differ from the run's own on --resume: the run's settings (where it

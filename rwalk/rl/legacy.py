@@ -20,6 +20,7 @@ from rwalk.configdata import RecordError, decode, shown
 from rwalk.levels import DEFAULT_KINDS, TerrainLevels
 from rwalk.rewards import GaitCosts
 from rwalk.rl.config import (
+    PREDATING,
     Preset,
     RunConfig,
     RunSettings,
@@ -196,9 +197,13 @@ def from_flags(args) -> Any:
     kind = next(training for flags, training in FLAG_FORMS.values() if isinstance(args, flags))
     env = dataclasses.replace(args.env.config(), num_threads=0)  # threads: the run's
     preset = Preset(args.task, args.robust, args.costs, args.settle_pool_fraction)
-    training = kind(env=env, preset=preset, num_envs=args.num_envs, train=args.train,
+    if kind is not Training:
+        return kind(env=env, preset=preset, num_envs=args.num_envs, train=args.train,
                     run=args.run)  # fmt: skip
-    return resolved(training) if kind is Training else training
+    before = {name: value for name, value in PREDATING.items() if getattr(args.train, name) is None}
+    train = dataclasses.replace(args.train, **before)  # what the schema-1 code trained with
+    return resolved(Training(env=env, preset=preset, num_envs=args.num_envs, train=train,
+                             run=args.run))  # fmt: skip
 
 
 def migrate(values: Any, trainer: str = "rsl_rl") -> Any:

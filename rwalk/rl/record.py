@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from rwalk.configdata import RecordError, decode, encode, shown
-from rwalk.rl.config import Preset, Training
+from rwalk.rl.config import PREDATING, Preset, Training
 from rwalk.tasks.registry import get_task
 
 #: The layout of config.json this version writes.
@@ -126,6 +126,8 @@ def read_record(path: Path, trainer: str = DEFAULT_TRAINER, cls: type = Training
             raise ConfigError(f"{name} has schema {shown(schema)}; this rwalk reads schemas 1 "
                               f"and {SCHEMA} (a newer rwalk wrote it?)")  # fmt: skip
         body = {k: v for k, v in saved.items() if k not in ("schema", "trainer")}
+        if cls is Training and isinstance(body.get("train"), dict):
+            body["train"] = PREDATING | body["train"]
         return decode_training(cls, body)
     except ConfigError:
         raise

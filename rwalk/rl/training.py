@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import importlib.metadata
 import os
 import time
@@ -461,6 +462,32 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
     return checkpoint, args
 
 
+def _narrow_physics(physics, keep: tuple[str, ...], iteration: int, say) -> None:
+    """From now on new episodes draw the model's own physics but for the ranges ``keep``."""
+    ranges = physics.randomization
+    physics.set_ranges(type(ranges).nominal(**{k: getattr(ranges, k) for k in keep}))
+    but = f" but for {', '.join(keep)}" if keep else ""
+    say(f"[rwalk] iteration {iteration}: new episodes draw the model's own physics{but}",
+        flush=True)  # fmt: skip
+
+
+def _after_updates(alg, count: int, then) -> None:
+    """Call ``then`` once, after ``alg``'s next ``count`` updates: rsl-rl's ``learn()``
+    updates once per iteration, after its rollout, so the next iteration collects with
+    what ``then`` changed, without ending the call (and its checkpoint chunk) there."""
+    update, done = alg.update, [0]
+
+    def counted(*args, **kwargs):
+        result = update(*args, **kwargs)
+        done[0] += 1
+        if done[0] == count:
+            alg.update = update
+            then()
+        return result
+
+    alg.update = counted
+
+
 def _learn(
     args: RunConfig,
     runner: SafeRunner,
@@ -479,19 +506,18 @@ def _learn(
     learning_since = time.perf_counter()  # per-iteration time excludes building the envs
     checkpoint = Path(args.log_dir) / f"model_{first}.pt"
     physics = runner.env.core.physics
+    stage = max(nominal_from, first)  # the first iteration at the model's physics
     while runner.current_learning_iteration < args.max_iterations:
         it = runner.current_learning_iteration
         # One learn() call up to the next checkpoint: rsl-rl saves the multiples of
         # save_interval in its loop and the call's last iteration after it.
         last = min(-(-it // args.save_interval) * args.save_interval, args.max_iterations - 1)
-        if it < nominal_from:  # the stage starts a call of its own
-            last = min(last, nominal_from - 1)
-        elif physics.randomization is not None and it == max(nominal_from, first):
-            ranges = physics.randomization
-            physics.set_ranges(type(ranges).nominal(**{k: getattr(ranges, k) for k in keep}))
-            but = f" but for {', '.join(keep)}" if keep else ""
-            say(f"[rwalk] iteration {it}: new episodes draw the model's own physics{but}",
-                flush=True)  # fmt: skip
+        if physics.randomization is not None and it <= stage <= last:
+            narrow = functools.partial(_narrow_physics, physics, keep, stage, say)
+            if stage == it:
+                narrow()
+            else:  # within the call, before iteration ``stage`` collects
+                _after_updates(runner.alg, stage - it, narrow)
         runner.learn(num_learning_iterations=last + 1 - it, init_at_random_ep_len=it == first)
         if runner.logger.writer is not None:  # rank 0's; learn() opens one each call
             runner.logger.writer.close()

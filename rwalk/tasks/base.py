@@ -61,6 +61,10 @@ class Task:
     """Config fields a trained policy acts through (its gait, action scale, timing,
     physics and commands): an evaluation env takes them from the training's record
     (``evaluation_config``)."""
+    nominal_physics_share: ClassVar[float] = 0.0
+    """rwalk-train's default --nominal-physics-iterations for this task where the physics
+    is randomised, as a share of --max-iterations: the last iterations drawing the
+    model's own physics (docs/learning.md)."""
     action_fields: ClassVar[tuple[str, ...]] = ()
     """Config fields that say what the action's values mean beyond its layout: a policy
     acts only in an env whose are its training's (``rwalk.evaluation.load_policy``)."""

@@ -24,6 +24,7 @@ class ResidualWalk(Task):
     action_dim = ACTION_DIM
     action_layout = "12 foot residuals (FL, FR, RL, RR x x, y, z)"
     single_step = True
+    nominal_physics_share = 1 / 3  # the last 100 of the default 300 (docs/learning.md)
 
     def __init__(self, config, world, num_envs: int) -> None:
         super().__init__(config, world, num_envs)
