@@ -268,10 +268,16 @@ def test_the_last_iterations_draw_the_models_physics(tmp_path, draws, capsys):
 
 
 def test_by_default_the_last_third_keeps_only_friction_randomised(tmp_path, draws, capsys):
-    train.main([*SHORT, "--max-iterations", "3", "--log-dir", str(tmp_path / "run")])
+    # iterations 1 and 2 are one learn() call (--save-interval 3): the stage starts
+    # inside it, after iteration 1's update, and adds no checkpoint
+    train.main([*SHORT, "--max-iterations", "3", "--save-interval", "3",
+                "--log-dir", str(tmp_path / "run")])  # fmt: skip
     out = capsys.readouterr().out
     assert "iteration 2: new episodes draw the model's own physics but for friction" in out
+    assert sorted(p.name for p in (tmp_path / "run").glob("model_*.pt")) == [
+        "model_0.pt", "model_2.pt"]  # fmt: skip
     stage = Randomization.nominal(friction=Randomization().friction)
+    assert draws[0][0] == Randomization()  # randomised before the stage
     after = torch.cat([p for ranges, p in draws if ranges == stage])
     assert len(after) > 1 and draws[-1][0] == stage
     assert torch.equal(after[:, 1:], NOMINAL[1:].expand(len(after), -1))  # all but friction
