@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from rsl_rl.algorithms import PPO
 from test_distributed import TORCHRUN, environment
 
 from rwalk.randomization import NOMINAL_PARAMS, PhysicsRandomizer, Randomization
@@ -121,6 +122,14 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
         ),
         (["--nominal-physics-iterations", "-1"], "--nominal-physics-iterations must be >= 0"),
         (["--nominal-physics-keep", "mass"], "--nominal-physics-keep names ranges of"),
+        (
+            ["--nominal-physics-entropy-coef", "-0.01"],
+            "--nominal-physics-entropy-coef must be >= 0, got -0.01",
+        ),
+        (
+            ["--nominal-physics-entropy-coef", "nan"],
+            "--nominal-physics-entropy-coef must be >= 0, got nan",
+        ),
     ],
 )
 def test_bad_pairings_are_usage_errors(flags, message, capsys):
@@ -241,11 +250,21 @@ SHORT = [*TINY[:_CUT], *TINY[_CUT + 2 :], "--max-episode-steps", "4"]
 NOMINAL = torch.tensor(NOMINAL_PARAMS, dtype=torch.float64)
 
 
-def test_the_last_iterations_draw_the_models_physics(tmp_path, draws, capsys):
+def test_the_last_iterations_draw_the_models_physics(tmp_path, draws, capsys, monkeypatch):
+    entropies = []
+    update = PPO.update
+
+    def spy(self, *args, **kwargs):
+        entropies.append(self.entropy_coef)
+        return update(self, *args, **kwargs)
+
+    monkeypatch.setattr(PPO, "update", spy)
     run = tmp_path / "run"
     train.main([*SHORT, "--max-iterations", "3", "--nominal-physics-iterations", "1",
-                "--nominal-physics-keep", "--log-dir", str(run)])  # fmt: skip
+                "--nominal-physics-entropy-coef", "0", "--nominal-physics-keep",
+                "--log-dir", str(run)])  # fmt: skip
     assert "iteration 2: new episodes draw the model's own physics" in capsys.readouterr().out
+    assert entropies == [0.005, 0.005, 0.0]  # and the stage's entropy bonus from there on
     narrowed = [ranges == Randomization.nominal() for ranges, _ in draws]
     before = [p for (_, p), n in zip(draws, narrowed, strict=True) if not n]
     after = [p for (_, p), n in zip(draws, narrowed, strict=True) if n]
@@ -263,7 +282,9 @@ def test_the_last_iterations_draw_the_models_physics(tmp_path, draws, capsys):
     draws.clear()
     train.main([*SHORT, "--max-iterations", "4", "--nominal-physics-iterations", "1",
                 "--resume", str(run), "--log-dir", str(run)])  # fmt: skip
-    assert "iteration 3: new episodes draw the model's own physics" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "iteration 3: new episodes draw the model's own physics" in out
+    assert "iteration 3: entropy bonus 0\n" in out  # the stage's, from its first iteration
     assert draws[-1][0] == Randomization.nominal()
 
 
@@ -274,6 +295,7 @@ def test_by_default_the_last_third_keeps_only_friction_randomised(tmp_path, draw
                 "--log-dir", str(tmp_path / "run")])  # fmt: skip
     out = capsys.readouterr().out
     assert "iteration 2: new episodes draw the model's own physics but for friction" in out
+    assert "entropy bonus" not in out  # --entropy-coef throughout
     assert sorted(p.name for p in (tmp_path / "run").glob("model_*.pt")) == [
         "model_0.pt", "model_2.pt"]  # fmt: skip
     stage = Randomization.nominal(friction=Randomization().friction)

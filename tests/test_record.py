@@ -120,25 +120,39 @@ def test_a_record_written_before_a_field_existed_reads_that_field_as_its_default
     # the model's physics, a record of it written before the field trained without one.
     data = record_of(train.parse_args(SMALL))
     assert data["train"].pop("nominal_physics_iterations") == 100
+    assert data["train"].pop("nominal_physics_entropy_coef") is None
     (tmp_path / "config.json").write_text(json.dumps(data))
-    assert read_record(tmp_path / "config.json").train.nominal_physics_iterations == 0
+    old = read_record(tmp_path / "config.json").train
+    assert old.nominal_physics_iterations == 0 and old.nominal_physics_entropy_coef is None
+    # a staged run recorded before the stage's entropy bonus kept --entropy-coef throughout
+    data["train"]["nominal_physics_iterations"] = 100
+    (tmp_path / "config.json").write_text(json.dumps(data))
+    assert read_record(tmp_path / "config.json").train.nominal_physics_entropy_coef is None
 
 
 @pytest.mark.parametrize(
-    ("flags", "stage"),
-    [([], 100), (["--no-robust"], 0), (["--task", "adaptive_gait", "--costs"], 0),
-     (["--nominal-physics-iterations", "0"], 0), (["--nominal-physics-iterations", "7"], 7)],
+    ("flags", "stage", "entropy"),
+    [([], 100, None), (["--no-robust"], 0, None), (["--task", "adaptive_gait", "--costs"], 0, None),
+     (["--nominal-physics-iterations", "0"], 0, None),
+     (["--nominal-physics-iterations", "7", "--nominal-physics-entropy-coef", "0.002"], 7, 0.002),
+     (["--nominal-physics-entropy-coef", "0"], 100, 0.0),
+     (["--no-robust", "--nominal-physics-entropy-coef", "0"], 0, None)],
 )  # fmt: skip
-def test_the_stage_at_the_models_physics_is_the_tasks_own_and_written_out(flags, stage, tmp_path):
+def test_the_stage_at_the_models_physics_is_the_tasks_own_and_written_out(
+    flags, stage, entropy, tmp_path
+):
     # residual_walk's robust training ends on 100 iterations at the model's physics but
     # for friction (docs/learning.md); the adaptive task's and a world without physics
-    # randomisation have none; the record keeps the number, not the rule.
+    # randomisation have none, and no stage has no entropy bonus of its own; the record
+    # keeps the number, not the rule.
     training = train.parse_args([*SMALL, *flags])
     assert training.train.nominal_physics_iterations == stage
     assert training.train.nominal_physics_keep == (("friction",) if stage else ())
+    assert training.train.nominal_physics_entropy_coef == entropy
     write_record(tmp_path / "config.json", training)
     stored = json.loads((tmp_path / "config.json").read_text())["train"]
     assert stored["nominal_physics_iterations"] == stage
+    assert stored["nominal_physics_entropy_coef"] == entropy
 
 
 # ------------------------------------------------------------ every nested field is a flag

@@ -189,6 +189,10 @@ class TrainConfig:
     nominal_physics_keep: tuple[str, ...] = ("friction",)
     """--nominal-physics-iterations: the --env.randomization ranges that stay as they are
     in that stage (none: every range narrowed)"""
+    nominal_physics_entropy_coef: float | None = None
+    """--nominal-physics-iterations: PPO's entropy bonus in that stage (None: --entropy-coef
+    throughout); 0 lets the action noise shrink while the stage learns its precision, which
+    bought precision and cost new-map falls on one seed of two (docs/learning.md)"""
     student_iterations: int = 0
     """with --teacher: when the teacher is trained, distil it into a blind student for this
     many iterations in LOG_DIR/student (both stages in one command; an interrupted student
@@ -202,6 +206,8 @@ class TrainConfig:
         require_at_least(self, 1, "rnn_hidden_dim", "gradient_length")
         stage = () if self.nominal_physics_iterations is None else ("nominal_physics_iterations",)
         require_at_least(self, 0, "student_iterations", *stage)
+        if self.nominal_physics_entropy_coef is not None:
+            require_at_least(self, 0, "nominal_physics_entropy_coef")
         require_at_most(self, MAX_WIDTH, "rnn_hidden_dim")
         require_at_most(self, MAX_ITERATIONS, "gradient_length", "student_iterations", *stage)
         for name in self.nominal_physics_keep:
@@ -461,9 +467,13 @@ def resolved(training: Training) -> Training:
         share = task.nominal_physics_share if training.env.randomization is not None else 0
         stage = round(share * training.run.max_iterations)
     keep = training.train.nominal_physics_keep if stage else ()  # no stage keeps nothing
+    # a stage's entropy bonus is PPO's: none without a stage, none for a distilled student
+    ppo = stage and not training.train.distill
+    entropy = training.train.nominal_physics_entropy_coef if ppo else None
     train = dataclasses.replace(
         training.train, policy_obs=groups["policy"], critic_obs=groups["critic"],
         nominal_physics_iterations=stage, nominal_physics_keep=keep,
+        nominal_physics_entropy_coef=entropy,
     )  # fmt: skip
     return dataclasses.replace(training, train=train)
 
@@ -489,7 +499,7 @@ def student_training(teacher: Training) -> Training:
 #: TrainConfig's fields whose default changed after runs were recorded without them (a
 #: schema-2 record written before the field, every schema-1 record): the value such a
 #: run trained with.
-PREDATING = {"nominal_physics_iterations": 0}
+PREDATING = {"nominal_physics_iterations": 0, "nominal_physics_entropy_coef": None}
 
 
 #: Fields that may differ from the run's own on --resume: the run's settings (where it

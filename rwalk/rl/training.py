@@ -451,7 +451,8 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
             write_record(log_dir / "config.json", args, TRAINER)
         nominal_from = args.run.max_iterations - args.train.nominal_physics_iterations
         checkpoint = _learn(args.run, runner, group, clock, nominal_from,
-                            args.train.nominal_physics_keep)  # fmt: skip
+                            args.train.nominal_physics_keep,
+                            args.train.nominal_physics_entropy_coef)  # fmt: skip
         if args.run.logger == "wandb" and group.main:
             from rwalk.rl.wandb_writer import WandbWriter
 
@@ -462,13 +463,19 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
     return checkpoint, args
 
 
-def _narrow_physics(physics, keep: tuple[str, ...], iteration: int, say) -> None:
-    """From now on new episodes draw the model's own physics but for the ranges ``keep``."""
+def _last_stage(runner, keep: tuple[str, ...], entropy: float | None, iteration: int,
+                say) -> None:  # fmt: skip
+    """From now on new episodes draw the model's own physics but for the ranges ``keep``,
+    and PPO's entropy bonus is ``entropy`` (None: as it was)."""
+    physics = runner.env.core.physics
     ranges = physics.randomization
     physics.set_ranges(type(ranges).nominal(**{k: getattr(ranges, k) for k in keep}))
     but = f" but for {', '.join(keep)}" if keep else ""
     say(f"[rwalk] iteration {iteration}: new episodes draw the model's own physics{but}",
         flush=True)  # fmt: skip
+    if entropy is not None:
+        runner.alg.entropy_coef = entropy
+        say(f"[rwalk] iteration {iteration}: entropy bonus {entropy:g}", flush=True)
 
 
 def _after_updates(alg, count: int, then) -> None:
@@ -495,11 +502,12 @@ def _learn(
     clock: float,
     nominal_from: int,
     keep: tuple[str, ...] = (),
+    entropy: float | None = None,
 ) -> Path:
     """``runner.learn`` in chunks up to each checkpoint, until --max-iterations or the
     time budget; from iteration ``nominal_from`` on (--nominal-physics-iterations) new
-    episodes draw the model's own physics but for the ranges named in ``keep``. Returns
-    the last checkpoint's path."""
+    episodes draw the model's own physics but for the ranges named in ``keep``, and PPO's
+    entropy bonus is ``entropy`` (None: unchanged). Returns the last checkpoint's path."""
     say = print if group.main else lambda *_, **__: None
     first = runner.current_learning_iteration
     budget = args.max_minutes * 60.0
@@ -513,11 +521,11 @@ def _learn(
         # save_interval in its loop and the call's last iteration after it.
         last = min(-(-it // args.save_interval) * args.save_interval, args.max_iterations - 1)
         if physics.randomization is not None and it <= stage <= last:
-            narrow = functools.partial(_narrow_physics, physics, keep, stage, say)
+            begin = functools.partial(_last_stage, runner, keep, entropy, stage, say)
             if stage == it:
-                narrow()
+                begin()
             else:  # within the call, before iteration ``stage`` collects
-                _after_updates(runner.alg, stage - it, narrow)
+                _after_updates(runner.alg, stage - it, begin)
         runner.learn(num_learning_iterations=last + 1 - it, init_at_random_ep_len=it == first)
         if runner.logger.writer is not None:  # rank 0's; learn() opens one each call
             runner.logger.writer.close()
