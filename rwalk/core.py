@@ -239,6 +239,7 @@ class Core:
         self.pushes.reset(rows)
         self.obs[rows] = self.starts.place(ids, randomize)
         self.task.reset(rows)
+        self.task.forget_actions(rows)
         self.task.draw_commands(rows)
         start = self.obs[rows]
         ep.start(rows, start[:, OBS_POS.start], start[:, OBS_POS.start + 1],
@@ -262,6 +263,7 @@ class Core:
         if not self._started:
             raise RuntimeError("call reset() on all envs before step()")
         action = self.check_action(action)
+        self.task.remember(action)
         ctrl, swing = self.task.act(action)
         ctrl = self.physics.delay(ctrl)
         self.observations.new_step()

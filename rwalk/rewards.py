@@ -134,11 +134,18 @@ class Shaping:
     """The kernel's half-width. m/s."""
     alive: float = 0.0
     """Reward per step."""
+    action_rate: float = 0.0
+    """Cost per unit of the action's squared change since the last step, summed over its
+    values (legged_gym's ``action_rate``; an episode's first step counts from the zero
+    action, the base gait). A size >= 0; 0: no term."""
 
     def __post_init__(self) -> None:
         _require_finite_numbers(self)
         if not self.sigma > 0:
             raise ValueError(f"Shaping.sigma must be > 0 m/s, got {self.sigma!r}")
+        if self.action_rate < 0:
+            raise ValueError(f"Shaping.action_rate is the size of a cost and must be >= 0, "
+                             f"got {self.action_rate!r}")  # fmt: skip
 
 
 def tracking_kernel(forward_velocity: Tensor, target: Tensor | float, sigma: float) -> Tensor:
@@ -148,13 +155,32 @@ def tracking_kernel(forward_velocity: Tensor, target: Tensor | float, sigma: flo
     return 1.0 / (1.0 + error * error)
 
 
+def action_rate(action: Tensor, last_action: Tensor) -> Tensor:
+    """Sum over the action's values of (a - a_last)^2, added column by column (the same bits
+    in any batch). Shape: (N, D), (N, D) -> (N,)."""
+    change = action - last_action
+    total = change[:, 0] * change[:, 0]
+    for j in range(1, change.shape[1]):
+        total = total + change[:, j] * change[:, j]
+    return total
+
+
 def shaping_terms(shaping: Shaping) -> tuple[RewardTerm, ...]:
-    """The terms of ``shaping``: ``tracking_kernel`` and ``alive``."""
-    return (
+    """The terms of ``shaping``: ``tracking_kernel``, ``alive`` and, where it has a size,
+    ``action_rate`` (minus its size times ``action_rate`` of the task's last two actions)."""
+    terms = (
         RewardTerm("tracking_kernel", shaping.tracking,
                    lambda s: tracking_kernel(s.forward_velocity, s.v_target, shaping.sigma)),
         RewardTerm("alive", shaping.alive, lambda s: s.forward_velocity * 0.0 + 1.0),
     )  # fmt: skip
+    if not shaping.action_rate:
+        return terms
+    rate = RewardTerm(
+        "action_rate",
+        -shaping.action_rate,
+        lambda s: action_rate(s.sources.task.action, s.sources.task.last_action),
+    )
+    return (*terms, rate)
 
 
 def quat_to_rpy(quat: Tensor) -> Tensor:

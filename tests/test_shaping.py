@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from rwalk import Core, EnvConfig, ResidualWalkEnv
-from rwalk.rewards import TERM_NAMES, Shaping, tracking_kernel
+from rwalk.envs.single_step import SingleStep
+from rwalk.rewards import TERM_NAMES, Shaping, action_rate, tracking_kernel
 from rwalk.runners import train
 
 FLAT = EnvConfig(model_path="model/world_flat.xml", settle_steps=5)
@@ -38,7 +39,39 @@ def test_shaping_terms_are_added_and_reported_and_the_spec_env_has_none():
     assert tuple(info["reward_components"]) == TERM_NAMES
 
 
-@pytest.mark.parametrize("bad", [dict(sigma=0.0), dict(tracking=float("nan")), dict(alive=1e9)])
+def test_the_action_rate_by_hand():
+    a = torch.tensor([[0.5, -0.25, 0.0], [1.0, 1.0, 1.0]], dtype=torch.float64)
+    last = torch.tensor([[0.25, 0.25, 0.0], [1.0, 1.0, 1.0]], dtype=torch.float64)
+    # 0.25^2 + 0.5^2 + 0 = 0.3125; no change: 0
+    assert action_rate(a, last).tolist() == [0.3125, 0.0]
+
+
+def test_the_action_rate_costs_each_change_from_the_episodes_zero_start():
+    shaped = dataclasses.replace(FLAT, shaping=Shaping(action_rate=2.0))
+    core = Core(shaped, 2, seed=0)
+    core.reset()
+    first = torch.zeros(2, 12)
+    first[0, 0], first[1, 5] = 0.5, -2.0  # clipped to -1 before it counts
+    second = first.clone()
+    second[0, 0], second[0, 1] = 0.25, 0.5
+    terms = [core.step(a).terms["action_rate"] for a in (first, second)]
+    assert terms[0].tolist() == [-2.0 * 0.25, -2.0 * 1.0]  # from the zero action
+    assert terms[1].tolist() == [-2.0 * (0.0625 + 0.25), 0.0]
+    core.reset(torch.tensor([1]))  # a new episode starts from the zero action again
+    assert core.step(second).terms["action_rate"].tolist() == [0.0, -2.0 * 1.0]
+    # the one-env float pipeline counts the same
+    single = Core(shaped, 1, seed=0)
+    single.reset()
+    step = SingleStep(single)
+    got = [step.step(a[0].numpy()).terms["action_rate"] for a in (first, second)]
+    assert got == [-2.0 * 0.25, -2.0 * (0.0625 + 0.25)]
+    assert torch.equal(single.task.last_action[0], first[0].double())
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [dict(sigma=0.0), dict(tracking=float("nan")), dict(alive=1e9), dict(action_rate=-1.0)],
+)
 def test_bad_shaping_is_named(bad):
     with pytest.raises(ValueError, match=r"Shaping\."):
         Shaping(**bad)

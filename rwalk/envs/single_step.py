@@ -90,6 +90,8 @@ class SingleStep:
         self._tensors = (core.tick, core.episode_step, core.walked_steps, core.y0, core.obs,
                          core.episode_distance, core.episode_speed_error,
                          *core.episode_sums.values())  # fmt: skip
+        self._action = core.task.action.numpy()[0]  # Task.remember's, for the action rate
+        self._last_action = core.task.last_action.numpy()[0]
         (self._tick, self._episode_step, self._walked, self._y0, obs, self._distance,
          self._speed_error) = (t.numpy() for t in self._tensors[:7])  # fmt: skip
         self._obs = obs[0]
@@ -114,7 +116,10 @@ class SingleStep:
         if self._tensors[4] is not core.obs or self._tensors[0] is not core.tick:
             self._bind()  # the core's tensors were replaced (e.g. by unpickling)
         cfg = core.config
-        residuals = self._check_action(action).reshape(4, 3) * cfg.residual_scale
+        checked = self._check_action(action)
+        self._last_action[:] = self._action  # Task.remember
+        self._action[:] = checked
+        residuals = checked.reshape(4, 3) * cfg.residual_scale
         k = core.decimation
         tick = int(self._tick[0])
         period = core.controller.period

@@ -77,6 +77,11 @@ class Task:
         """Target velocity of each env's episode. Shape: (N,). m/s."""
         self.draws = torch.zeros(num_envs, dtype=torch.long)
         """Commands drawn so far by each env (the counter of its next draw). Shape: (N,)."""
+        self.action = torch.zeros(num_envs, self.action_dim, dtype=torch.float64)
+        """Each env's action of its last step, checked and clipped (zero at an episode's
+        start: the base gait). Shape: (N, action_dim)."""
+        self.last_action = torch.zeros_like(self.action)
+        """Each env's action of the step before. Shape: (N, action_dim)."""
         self._seed = 0
         if config.costs is not None:
             config.costs.check_reach(world.geometry)
@@ -233,4 +238,15 @@ class Task:
 
     def state(self) -> dict[str, Tensor]:
         """Per-env tensors to keep when the core is pickled."""
-        return {"target": self.target, "draws": self.draws}
+        return {"target": self.target, "draws": self.draws, "action": self.action,
+                "last_action": self.last_action}  # fmt: skip
+
+    def remember(self, action: Tensor) -> None:
+        """Keep this step's action (checked, clipped) and the one before it."""
+        self.last_action.copy_(self.action)
+        self.action.copy_(action)
+
+    def forget_actions(self, rows: Tensor) -> None:
+        """New episodes in ``rows`` start from the zero action. Shape: (M,)."""
+        self.action[rows] = 0.0
+        self.last_action[rows] = 0.0
