@@ -5,13 +5,14 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import torch
 
 from rwalk.constants import OBS_CONTACT, OBS_FOOT_POS, OBS_LINVEL, OBS_POS, OBS_QUAT
 from rwalk.core import ResidualWalkCore
-from rwalk.rewards import quat_to_rpy
+from rwalk.rewards import action_rate, quat_to_rpy
 
 
 @dataclass(frozen=True)
@@ -140,3 +141,129 @@ def walk(
         torque=(sums["tau"] / counted).numpy(),
         seconds=seconds,
     )
+
+
+@dataclass(frozen=True)
+class SpeedParts:
+    """A policy's per-step speed error split into its parts (docs/learning.md, "What the
+    ripple is"): each env's bias, a profile repeated in every gait cycle, and the rest.
+    Mean absolute values over the walked steps, m/s, but where said."""
+
+    error: float
+    """|v_x - v*|."""
+    bias: float
+    """|an env's mean v_x - v*|, over envs."""
+    profile: float
+    """|the mean by gait-phase bin of v_x minus its env's mean|."""
+    rest: float
+    """|v_x - v* - its env's bias - the profile at its phase|."""
+    rest_autocorrelation: float
+    """The rest's autocorrelation one step later (nan without any rest)."""
+    rest_high_frequency: float
+    """Share of the rest's power above ``above`` Hz (nan without any rest)."""
+    action_change: float
+    """The action's squared change from the step before, summed over its values (the
+    action-rate term's quantity, ``rwalk.rewards.action_rate``). Not m/s."""
+
+
+class SpeedTrace(NamedTuple):
+    """Paired episodes step by step (``speed_trace``). Each shape: (T, N), action (T, N, D)."""
+
+    velocity: torch.Tensor
+    """Torso v_x. m/s."""
+    phase: torch.Tensor
+    """Gait phase in [0, 1)."""
+    walked: torch.Tensor
+    """The steps to count (bool)."""
+    action: torch.Tensor
+    """The action sent."""
+
+
+def speed_parts(
+    trace: SpeedTrace, target: float, control_dt: float, bins: int = 40, above: float = 6.0
+) -> SpeedParts:
+    """Split the speed error of the walked steps of ``trace`` (``SpeedParts``).
+
+    Args:
+        target: v*. m/s.
+        control_dt: seconds per step (for the spectrum).
+        bins: gait-phase bins of the profile.
+        above: frequency from which the rest's power counts as high. Hz.
+    """
+    velocity, phase, walked, action = trace
+    counted = walked.double()
+    error = (velocity - target).masked_fill(~walked, 0.0)
+    steps = counted.sum(0)
+    bias = error.sum(0) / steps.clamp(min=1.0)
+    centred = (error - bias).masked_fill(~walked, 0.0)
+    where = (phase * bins).long().clamp(0, bins - 1)
+    total = torch.zeros(bins, dtype=torch.float64).index_add_(0, where[walked], centred[walked])
+    seen = torch.zeros(bins, dtype=torch.float64).index_add_(0, where[walked], counted[walked])
+    profile = (total / seen.clamp(min=1.0))[where].masked_fill(~walked, 0.0)
+    rest = centred - profile
+    power = (rest * rest).sum()
+    spectrum = torch.fft.rfft(rest, dim=0).abs().square().sum(1)
+    hertz = torch.fft.rfftfreq(rest.shape[0], d=control_dt)
+    n = counted.sum()
+    flat = action.flatten(0, 1)
+    change = action_rate(flat[action.shape[1] :], flat[: -action.shape[1]])
+    both = (walked[1:] & walked[:-1]).flatten()
+    return SpeedParts(
+        error=float(error.abs().sum() / n),
+        bias=float(bias[steps > 0].abs().mean()),
+        profile=float(profile.abs().sum() / n),
+        rest=float(rest.abs().sum() / n),
+        rest_autocorrelation=float((rest[1:] * rest[:-1]).sum() / power) if power else math.nan,
+        rest_high_frequency=float(spectrum[hertz > above].sum() / spectrum.sum())
+        if power
+        else math.nan,
+        action_change=float(change[both].mean()) if bool(both.any()) else math.nan,
+    )
+
+
+def speed_trace(
+    env, policy=None, seed: int = 1000, skip: int = 50, low_pass: float | None = None
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Walk one episode in every env of ``env`` (a ``BatchedEnv``; env i starts like a
+    single env seeded ``seed + i``, as in ``rwalk.evaluation.evaluate``) and trace it.
+
+    Args:
+        policy: callable returning (N, action_dim) actions (``rwalk.evaluation.load_policy``);
+            None: the base gait.
+        skip: first steps of each episode not counted (the start).
+        low_pass: a (0, 1] filter on the actions sent: each step ``low_pass`` of the
+            policy's action and the rest of the last one sent (an evaluation-only probe of
+            how much of the error is the policy's own jitter); None: as the policy acts.
+
+    Returns:
+        The ``SpeedTrace``, for ``speed_parts``.
+    """
+    from rwalk import episodes
+
+    core = env.core
+    env.set_seed(seed)
+    core.reset()
+    if policy is not None and hasattr(policy, "reset"):
+        policy.reset()
+    n = core.num_envs
+    sent = torch.zeros(n, core.task.action_dim, dtype=torch.float64)
+    ended = torch.zeros(n, dtype=torch.bool)
+    velocity, phase, walked, sent_actions = [], [], [], []
+    with torch.inference_mode():
+        for step in range(core.config.max_episode_steps):
+            action = sent if policy is None else policy().double()
+            if policy is not None and low_pass is not None:
+                action = low_pass * action + (1.0 - low_pass) * sent
+            sent = core.check_action(action)  # clipped, as the env acts on it
+            sent_actions.append(sent)
+            _, end = episodes.step(core, sent, auto_reset=False)
+            features = core.phase_features()
+            velocity.append(core.obs[:, OBS_LINVEL.start].clone())
+            phase.append(torch.atan2(features[:, 0], features[:, 1]) / (2 * math.pi) % 1.0)
+            walked.append(~ended if step >= skip else torch.zeros(n, dtype=torch.bool))
+            if end is not None:
+                ended[end.ids] = True  # its last step counts, the next episode's do not
+            if bool(ended.all()):
+                break
+    return SpeedTrace(torch.stack(velocity), torch.stack(phase), torch.stack(walked),
+                      torch.stack(sent_actions))  # fmt: skip
