@@ -10,6 +10,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from rwalk import episodes
 from rwalk.constants import OBS_CONTACT, OBS_FOOT_POS, OBS_LINVEL, OBS_POS, OBS_QUAT
 from rwalk.core import ResidualWalkCore
 from rwalk.rewards import action_rate, quat_to_rpy
@@ -223,7 +224,7 @@ def speed_parts(
 
 def speed_trace(
     env, policy=None, seed: int = 1000, skip: int = 50, low_pass: float | None = None
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+) -> SpeedTrace:
     """Walk one episode in every env of ``env`` (a ``BatchedEnv``; env i starts like a
     single env seeded ``seed + i``, as in ``rwalk.evaluation.evaluate``) and trace it.
 
@@ -238,8 +239,6 @@ def speed_trace(
     Returns:
         The ``SpeedTrace``, for ``speed_parts``.
     """
-    from rwalk import episodes
-
     core = env.core
     env.set_seed(seed)
     core.reset()

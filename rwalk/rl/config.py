@@ -499,7 +499,7 @@ def student_training(teacher: Training) -> Training:
 #: TrainConfig's fields whose default changed after runs were recorded without them (a
 #: schema-2 record written before the field, every schema-1 record): the value such a
 #: run trained with.
-PREDATING = {"nominal_physics_iterations": 0, "nominal_physics_entropy_coef": None}
+PREDATING = {"nominal_physics_iterations": 0}
 
 
 #: Fields that may differ from the run's own on --resume: the run's settings (where it
