@@ -103,8 +103,9 @@ def test_a_bad_command_interval_is_named(bad):
 
 def test_rwalk_train_sets_shaping_and_the_interval_from_its_command_line():
     training = train.parse_args(["--env.shaping.tracking", "300", "--env.shaping.sigma", "0.03",
+                                 "--env.shaping.action-rate", "20",
                                  "--command-range", "0.07", "0.2",
                                  "--env.command-interval", "4"])  # fmt: skip
-    assert training.env.shaping == Shaping(tracking=300.0, sigma=0.03)
+    assert training.env.shaping == Shaping(tracking=300.0, sigma=0.03, action_rate=20.0)
     assert training.env.command_interval == 4.0 and training.env.command_range == (0.07, 0.2)
     assert "command" in training.train.policy_obs  # the policy reads what it is asked
