@@ -14,6 +14,9 @@ slopes, steps, stones) of a held-out terrain-levels map at every level and repor
 the mean and spread of each gait parameter it commands, and of how high its feet rise
 above the ground under them in each swing (residuals included); ``adaptation`` checks the
 step height on rough and step tiles at the upper levels against flat ground.
+``gait_at_speeds`` reports the same quantities asked for each of ``SPEEDS`` on the
+nominal world: which parameters a commanded policy moves to change its speed, and
+whether one of them sits at its bound.
 """
 
 from __future__ import annotations
@@ -167,22 +170,57 @@ def walk_levels(
         config = on_map(base, dataclasses.replace(
             levels, kinds=TERRAIN_KINDS, start_level=level, curriculum=False))  # fmt: skip
         env = BatchedEnv(episodes * kinds, config, seed=seed)
-        sums, squares, counts, fell = _walk(env, policy_for(env), seed, steps)
+        walked = _walk(env, policy_for(env), seed, steps)
         for k, kind in enumerate(TERRAIN_KINDS):
-            rows = slice(k, None, kinds)  # env i walks on kind i % kinds
-            n = counts[rows].clamp(min=1)
-            per_episode = sums[rows] / n
-            pooled_mean = sums[rows].sum(0) / n.sum(0)
-            pooled_var = squares[rows].sum(0) / n.sum(0) - pooled_mean**2
-            sd = per_episode.std(0) if episodes > 1 else torch.zeros(len(MEASURED))
-            out.append(GaitStats(
-                kind=kind, level=level, episodes=episodes,
-                fall_rate=float(fell[rows].double().mean()),
-                mean=tuple(per_episode.mean(0).tolist()),
-                interval=tuple((1.96 * sd / math.sqrt(episodes)).tolist()),
-                spread=tuple(pooled_var.clamp(min=0).sqrt().tolist()),
-            ))  # fmt: skip
+            out.append(_stats(kind, level, walked, slice(k, None, kinds)))  # env i: kind i % kinds
     return out
+
+
+def gait_at_speeds(
+    checkpoint: Path, episodes: int, seed: int, steps: int = GAIT_STEPS, scale: float = 1.0
+) -> list[GaitStats]:
+    """A commanded adaptive policy's gait asked for each of ``SPEEDS`` (``walk_speeds``)."""
+    return walk_speeds(lambda env: load_policy(checkpoint, env), trained_env(checkpoint),
+                       episodes, seed, steps, scale)  # fmt: skip
+
+
+def walk_speeds(
+    policy_for: Callable[[BatchedEnv], Policy],
+    trained: EnvConfig,
+    episodes: int,
+    seed: int,
+    steps: int = GAIT_STEPS,
+    scale: float = 1.0,
+) -> list[GaitStats]:
+    """The gait (``MEASURED``) of the policy that ``policy_for`` builds, asked for each of
+    ``SPEEDS`` on ``episodes`` paired episodes of the rough world at ``scale`` (1.0:
+    robustness's "nominal"), ``steps`` long, the first SKIP_STEPS left out: a row per
+    speed, its kind the speed asked ("0.05 m/s") and its level 0 (the world has none)."""
+    out = []
+    for speed in SPEEDS:
+        config = presets.evaluation_env(trained, terrain_scale=scale, max_episode_steps=steps,
+                                        command_range=(speed, speed))  # fmt: skip
+        env = BatchedEnv(episodes, config, seed=seed)
+        out.append(_stats(f"{speed:g} m/s", 0, _walk(env, policy_for(env), seed, steps)))
+    return out
+
+
+def _stats(kind: str, level: int, walked, rows: slice = slice(None)) -> GaitStats:
+    """The ``GaitStats`` of the envs ``rows`` of one ``_walk``."""
+    sums, squares, counts, fell = (t[rows] for t in walked)
+    episodes = len(fell)
+    n = counts.clamp(min=1)
+    per_episode = sums / n
+    pooled_mean = sums.sum(0) / n.sum(0)
+    pooled_var = squares.sum(0) / n.sum(0) - pooled_mean**2
+    sd = per_episode.std(0) if episodes > 1 else torch.zeros(len(MEASURED))
+    return GaitStats(
+        kind=kind, level=level, episodes=episodes,
+        fall_rate=float(fell.double().mean()),
+        mean=tuple(per_episode.mean(0).tolist()),
+        interval=tuple((1.96 * sd / math.sqrt(episodes)).tolist()),
+        spread=tuple(pooled_var.clamp(min=0).sqrt().tolist()),
+    )  # fmt: skip
 
 
 def _walk(env: BatchedEnv, policy, seed: int, steps: int):

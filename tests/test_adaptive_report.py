@@ -78,6 +78,26 @@ def test_the_gait_statistics_are_per_kind_and_level():
             assert abs(s.mean[4] - float(expected[0])) < 0.001
 
 
+def test_the_gait_at_each_commanded_speed_is_a_row_per_speed():
+    targets = torch.tensor([[0.5, -0.5, 0.25, 0.0]]).expand(len(ae.TERRAIN_KINDS), 4)
+    built = []
+
+    def policy_for(env):
+        built.append(env.core.config)
+        return HoldTargets(targets, env.core.num_envs)
+
+    trained = AdaptiveGaitConfig(gait_action="target", command_range=(0.05, 0.25))
+    stats = ae.walk_speeds(policy_for, trained, episodes=2, seed=5, steps=60)
+    assert [s.kind for s in stats] == ["0.05 m/s", "0.1 m/s", "0.15 m/s", "0.2 m/s", "0.25 m/s"]
+    assert [c.command_range for c in built] == [(v, v) for v in ae.SPEEDS]
+    assert all(c.terrain_scale == 1.0 and c.max_episode_steps == 60 for c in built)
+    # The held targets, read as in the test above: the middle of each range plus its share.
+    expected = [0.025 + 0.5 * 0.015, 0.08 - 0.5 * 0.08, 0.6 + 0.25 * 0.3, 0.07]
+    for s in stats:
+        assert (s.level, s.episodes, s.fall_rate) == (0, 2, 0.0)
+        assert s.mean[:4] == pytest.approx(expected, abs=1e-12)
+
+
 def _stats(kind, level, height_mm, interval_mm):
     h, i = height_mm / 1000, interval_mm / 1000
     return GaitStats(kind, level, 100, 0.0, (h, 0.08, 0.6, 0.07), (i, 0, 0, 0), (0, 0, 0, 0))
@@ -195,3 +215,15 @@ def test_the_fall_interval_is_wilson_s():
     assert falls(0.0, 100) == pytest.approx((0.0, 0.03699), abs=1e-5)  # 1.96² / (100 + 1.96²)
     assert falls(0.5, 100) == pytest.approx((0.4038, 0.5962), abs=1e-4)
     assert falls(1.0, 10) == pytest.approx((0.7225, 1.0), abs=1e-4)
+
+
+def test_a_trained_policys_gait_at_each_speed_reads_its_checkpoint(checkpoints):
+    adaptive = checkpoints[1]
+    stats = ae.gait_at_speeds(adaptive, episodes=2, seed=3, steps=55)
+    assert [s.kind for s in stats] == [f"{v:g} m/s" for v in ae.SPEEDS]
+    low = (0.01, 0.0, 0.3, 0.05)  # the trained bounds' lows (AdaptiveGaitConfig's defaults)
+    high = (0.04, 0.16, 0.9, 0.09)
+    for s in stats:
+        assert s.episodes == 2 and len(s.mean) == len(ae.MEASURED)
+        params = zip(low, s.mean[:4], high, strict=True)
+        assert all(lo - 1e-9 <= m <= hi + 1e-9 for lo, m, hi in params)
