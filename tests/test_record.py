@@ -230,6 +230,25 @@ def test_resume_refuses_a_contradicting_nested_flag_naming_both_values(tmp_path,
     assert json.loads((folder / "config.json").read_text())["env"]["costs"]["clearance"] == 3000.0
 
 
+def test_resume_goes_on_in_the_runs_own_folder_with_its_own_seed(tmp_path, monkeypatch):
+    """Without --log-dir and --seed, a resumed run writes to the folder it was resumed
+    from with the seed it trained with, not to the defaults (logs/rwalk, seed 0)."""
+    monkeypatch.chdir(tmp_path)
+    folder = tmp_path / "runs" / "mine"
+    tiny = ["--num-envs", "4", "--num-steps-per-env", "4", "--settle-steps", "2",
+            "--max-episode-steps", "20", "--hidden-dims", "8", "--save-interval", "1",
+            "--no-export"]  # fmt: skip
+    train.main([*tiny, "--seed", "3", "--log-dir", str(folder), "--max-iterations", "1"])
+    for resume in (folder, folder / "model_0.pt"):
+        training = train.parse_args(["--resume", str(resume), "--max-iterations", "2"])
+        assert (training.run.log_dir, training.run.seed) == (str(folder), 3)
+    elsewhere = train.parse_args(["--resume", str(folder), "--log-dir", "other", "--seed", "5"])
+    assert (elsewhere.run.log_dir, elsewhere.run.seed) == ("other", 5)
+    train.main(["--resume", str(folder), "--max-iterations", "2"])
+    assert (folder / "model_1.pt").exists() and not (tmp_path / "logs").exists()
+    assert json.loads((folder / "config.json").read_text())["run"]["seed"] == 3
+
+
 def test_the_torchrl_trainer_takes_the_same_nested_flags():
     training = train_torchrl.parse_args(["--env.pushes.interval", "1.0", "2.0"])
     assert training.env.pushes.interval == (1.0, 2.0) and training.num_envs == 256

@@ -3,7 +3,9 @@
 The preset's flags (--task, --robust/--no-robust, --costs, --settle-pool-fraction)
 and --num-envs choose the defaults (``Preset.env``); with --resume the defaults are
 the resumed run's own record, so that a flag given on --resume that differs from
-the run's is one the user typed (``rwalk.rl.config.resume_conflict``). Then every
+the run's is one the user typed (``rwalk.rl.config.resume_conflict``), and the run
+goes on in its own folder with its own seed unless --log-dir or --seed says
+otherwise. Then every
 field is a flag (``rwalk.cli.parse``): ``--env.costs.clearance 3000``,
 ``--env.randomization.friction 0.5 1.3``; naming a field of a part the defaults
 leave out (``--env.pushes.speed 0.1 0.2`` on --no-robust) adds that part at its
@@ -83,12 +85,13 @@ def defaults(cls: type, argv: list[str], read_record) -> Any:
     run = own["run"].default_factory()
     if isinstance(resume, str) and resume:
         path = Path(resume)
-        config = (path if path.is_dir() else path.parent) / "config.json"
+        folder = path if path.is_dir() else path.parent
         try:
-            saved = read_record(config)
+            saved = read_record(folder / "config.json")
         except (OSError, ValueError):
             saved = None  # --resume names it, before any work
-        if saved is not None:
+        if saved is not None:  # in its own folder with its own seed, unless flags say else
+            run = dataclasses.replace(run, log_dir=str(folder), seed=saved.run.seed)
             return dataclasses.replace(saved, run=run, num_envs=num_envs)
     values = {}
     for f in dataclasses.fields(Preset):
