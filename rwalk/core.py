@@ -35,6 +35,7 @@ what lies outside our control).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 import numpy as np
@@ -49,7 +50,7 @@ from rwalk.episodes import Episodes, StepResult
 from rwalk.observations import Observations, Sources
 from rwalk.perturbations import PushSchedule
 from rwalk.randomization import PhysicsRandomizer
-from rwalk.rewards import StepState, evaluate, fallen, quat_to_rpy
+from rwalk.rewards import GaitCosts, Shaping, StepState, evaluate, fallen, quat_to_rpy
 from rwalk.sim import BatchedSim
 from rwalk.starts import START_STREAM, Starts, sensor_observation, sensor_rows
 from rwalk.tasks.base import Task
@@ -317,6 +318,33 @@ class Core:
         self.world.set_terrain_scale(scale, self.config)
         self.sim.set_model(self.model)
         self.starts.set_model(self.model)
+
+    def set_reward(self, costs: GaitCosts | None = None, shaping: Shaping | None = None) -> None:
+        """From the next step on, the reward's gait costs and training shaping are these
+        (None: as they are), on a config that has them: the same terms with new values
+        (rwalk-train's --late-iterations stage), in ``config`` too.
+
+        Raises:
+            ValueError: a part the config has not, or values that add or remove a term
+                (naming the terms).
+        """
+        changes = {"costs": costs, "shaping": shaping}
+        changes = {name: value for name, value in changes.items() if value is not None}
+        for name in changes:
+            if getattr(self.config, name) is None:
+                raise ValueError(f"set_reward: this env's config has no {name} to change")
+        config = dataclasses.replace(self.config, **changes)
+        if config.costs is not None:
+            config.costs.check_reach(self.world.geometry)
+        old = self.task.config
+        self.task.config = config
+        terms = self.task.reward_terms()
+        names, before = [t.name for t in terms], [t.name for t in self.terms]
+        if names != before:
+            self.task.config = old
+            raise ValueError(f"set_reward changes the values of the reward's terms, not which "
+                             f"terms there are: {before} would become {names}")  # fmt: skip
+        self.config, self.terms = config, terms
 
     def phase_features(self) -> Tensor:
         """(sin 2πφ, cos 2πφ) of the gait phase. Shape: (N, 2)."""

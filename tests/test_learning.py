@@ -13,7 +13,9 @@ import torch
 from rsl_rl.algorithms import PPO
 from test_distributed import TORCHRUN, environment
 
+from rwalk import Core
 from rwalk.randomization import NOMINAL_PARAMS, PhysicsRandomizer, Randomization
+from rwalk.rewards import GaitCosts
 from rwalk.rl.checkpoints import checkpoint_files, load_checkpoint
 from rwalk.runners import play, train
 from rwalk.tensorboard_events import read_scalars
@@ -129,6 +131,36 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
         (
             ["--nominal-physics-entropy-coef", "nan"],
             "--nominal-physics-entropy-coef must be >= 0, got nan",
+        ),
+        (["--late-iterations", "5"], "--late-iterations 5 and the stage's values go together"),
+        (["--late-sigma", "0.04"], "--late-clearance-target), got --late-sigma 0.04"),
+        (["--late-iterations", "-1", "--late-sigma", "0.04"], "--late-iterations must be >= 0"),
+        (["--late-iterations", "5", "--late-sigma", "nan"], "--late-sigma must be a finite"),
+        (
+            ["--late-iterations", "5", "--late-clearance-target", "-0.01"],
+            "--late-clearance-target must be a finite number > 0, got -0.01",
+        ),
+        (
+            ["--late-iterations", "5", "--late-sigma", "0.04"],
+            "--late-sigma 0.04 changes --env.shaping, which this training has not",
+        ),
+        (
+            ["--costs", "--late-iterations", "5", "--late-clearance-target", "9"],
+            "--late-clearance-target 9.0: GaitCosts.clearance_target must be > 0 and within",
+        ),
+        (
+            [
+                "--distill",
+                "x.pt",
+                "--no-symmetry",
+                "--late-iterations",
+                "5",
+                "--late-sigma",
+                "0.04",
+                "--env.shaping.tracking",
+                "1",
+            ],
+            "--late-iterations changes the reward, which a distilled student does not learn",
         ),
     ],
 )
@@ -286,6 +318,48 @@ def test_the_last_iterations_draw_the_models_physics(tmp_path, draws, capsys, mo
     assert "iteration 3: new episodes draw the model's own physics" in out
     assert "iteration 3: entropy bonus 0\n" in out  # the stage's, from its first iteration
     assert draws[-1][0] == Randomization.nominal()
+
+
+def test_the_late_stage_changes_the_rewards_values_and_resumes_into_it(tmp_path, capsys,
+                                                                      monkeypatch):  # fmt: skip
+    calls = []
+    set_reward = Core.set_reward
+
+    def spy(self, costs=None, shaping=None):
+        calls.append((costs, shaping))
+        return set_reward(self, costs, shaping)
+
+    monkeypatch.setattr(Core, "set_reward", spy)
+    shaped = [*SHORT, "--env.shaping.tracking", "300", "--costs"]
+    run = tmp_path / "run"
+    # iterations 1-3 are one learn() call: the late stage begins after its first update
+    # (before iteration 2), the model's physics after its second (before iteration 3)
+    train.main([*shaped, "--max-iterations", "4", "--save-interval", "4",
+                "--nominal-physics-iterations", "1", "--late-iterations", "2",
+                "--late-sigma", "0.04", "--late-clearance-target", "0.025",
+                "--log-dir", str(run)])  # fmt: skip
+    out = capsys.readouterr().out
+    late = ("iteration 2: the reward's late values --env.shaping.sigma 0.04, "
+            "--env.costs.clearance-target 0.025")  # fmt: skip
+    physics = "iteration 3: new episodes draw the model's own physics but for friction"
+    assert late in out and physics in out and out.index(late) < out.index(physics)
+    ((costs, shaping),) = calls
+    assert (shaping.sigma, shaping.tracking, costs.clearance_target) == (0.04, 300.0, 0.025)
+    assert costs.clearance == GaitCosts().clearance  # the other values as they were
+    # the iterations before the stage are the plain run's, bit for bit
+    plain = tmp_path / "plain"
+    train.main([*shaped, "--max-iterations", "2", "--nominal-physics-iterations", "0",
+                "--log-dir", str(plain)])  # fmt: skip
+    ours, theirs = load_checkpoint(run / "model_0.pt"), load_checkpoint(plain / "model_0.pt")
+    for name, tensor in theirs["actor_state_dict"].items():
+        assert torch.equal(ours["actor_state_dict"][name], tensor), name
+    # resumed past its start, the stage begins at the first iteration
+    calls.clear()
+    train.main([*shaped, "--max-iterations", "5", "--nominal-physics-iterations", "1",
+                "--late-iterations", "2", "--late-sigma", "0.04", "--late-clearance-target",
+                "0.025", "--resume", str(run), "--log-dir", str(run)])  # fmt: skip
+    assert "iteration 4: the reward's late values" in capsys.readouterr().out
+    assert len(calls) == 1
 
 
 def test_by_default_the_last_third_keeps_only_friction_randomised(tmp_path, draws, capsys):

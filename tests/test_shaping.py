@@ -8,7 +8,7 @@ import torch
 
 from rwalk import Core, EnvConfig, ResidualWalkEnv
 from rwalk.envs.single_step import SingleStep
-from rwalk.rewards import TERM_NAMES, Shaping, action_rate, tracking_kernel
+from rwalk.rewards import TERM_NAMES, GaitCosts, Shaping, action_rate, tracking_kernel
 from rwalk.runners import train
 
 FLAT = EnvConfig(model_path="model/world_flat.xml", settle_steps=5)
@@ -37,6 +37,48 @@ def test_shaping_terms_are_added_and_reported_and_the_spec_env_has_none():
     env.reset()
     _, _, _, _, info = env.step(env.action_space.sample() * 0)
     assert tuple(info["reward_components"]) == TERM_NAMES
+
+
+def test_set_reward_changes_the_terms_values_from_the_next_step():
+    """A core switched to a wider kernel and a higher clearance target after 3 steps
+    reports, from then on, the very terms of a core built with them (the terms do not move
+    the simulation, so both walk the same steps), and before it those of the old values."""
+    old = dataclasses.replace(FLAT, costs=GaitCosts(), shaping=Shaping(tracking=300.0))
+    late = {
+        "costs": GaitCosts(clearance_target=0.025),
+        "shaping": Shaping(tracking=300.0, sigma=0.04),
+    }
+    switched, before, after = (Core(c, 3, seed=0) for c in
+                               (old, old, dataclasses.replace(old, **late)))  # fmt: skip
+    for core in (switched, before, after):
+        core.reset()
+    action, shortfall = torch.zeros(3, 12), []
+    for step in range(12):
+        if step == 3:
+            switched.set_reward(**late)
+        got, *theirs = (core.step(action).terms for core in (switched, before, after))
+        expected = theirs[0] if step < 3 else theirs[1]
+        for name, value in expected.items():
+            assert torch.equal(got[name], value), (step, name)
+        shortfall.append([float(t["clearance"].sum()) for t in theirs])
+    assert switched.config == after.config
+    # the two sets of values differ where it shows: the kernel, and the clearance (steps
+    # 3-6 here: a foot under 25 mm and over 15 mm in mid swing)
+    assert not torch.equal(theirs[0]["tracking_kernel"], theirs[1]["tracking_kernel"])
+    assert any(low != high for low, high in shortfall[3:])
+    v = switched.obs[:, 7]
+    kernel = 300.0 * tracking_kernel(v, switched.task.v_target, 0.04)
+    torch.testing.assert_close(got["tracking_kernel"], kernel)
+
+
+def test_set_reward_refuses_a_missing_part_and_a_change_of_terms():
+    core = Core(dataclasses.replace(FLAT, shaping=Shaping(tracking=300.0)), 1, seed=0)
+    with pytest.raises(ValueError, match="no costs to change"):
+        core.set_reward(costs=GaitCosts())
+    with pytest.raises(ValueError, match=r"not which terms.*'action_rate'"):
+        core.set_reward(shaping=Shaping(tracking=300.0, action_rate=1.0))
+    assert core.config.shaping == Shaping(tracking=300.0)  # a refusal changes nothing
+    assert [t.name for t in core.terms] == [*TERM_NAMES, "tracking_kernel", "alive"]
 
 
 def test_the_action_rate_by_hand():

@@ -193,6 +193,17 @@ class TrainConfig:
     """--nominal-physics-iterations: PPO's entropy bonus in that stage (None: --entropy-coef
     throughout); 0 lets the action noise shrink while the stage learns its precision, which
     bought precision and cost new-map falls on one seed of two (docs/learning.md)"""
+    late_iterations: int = 0
+    """the last N of --max-iterations train with the reward's values that --late-sigma
+    and --late-clearance-target give (the costs moved on a policy that has climbed the
+    curriculum; docs/adaptive.md), the optimizer, curriculum and episodes going on; 0: no
+    such stage"""
+    late_sigma: float | None = None
+    """--late-iterations: the training kernel's half-width (--env.shaping.sigma) in that
+    stage, m/s; None: unchanged"""
+    late_clearance_target: float | None = None
+    """--late-iterations: the gait costs' clearance target (--env.costs.clearance-target)
+    in that stage, m; None: unchanged"""
     student_iterations: int = 0
     """with --teacher: when the teacher is trained, distil it into a blind student for this
     many iterations in LOG_DIR/student (both stages in one command; an interrupted student
@@ -214,9 +225,23 @@ class TrainConfig:
             if name not in PHYSICS_RANGES:
                 raise ValueError(f"--nominal-physics-keep names ranges of --env.randomization "
                                  f"({', '.join(PHYSICS_RANGES)}), got {name!r}")  # fmt: skip
+        require_at_least(self, 0, "late_iterations")
+        require_at_most(self, MAX_ITERATIONS, "late_iterations")
+        late = [name for name in ("late_sigma", "late_clearance_target")
+                if getattr(self, name) is not None]  # fmt: skip
+        require_positive(self, *late)
+        if bool(late) != bool(self.late_iterations):
+            raise ValueError(
+                f"--late-iterations {self.late_iterations} and the stage's values go together "
+                f"(--late-sigma, --late-clearance-target), got "
+                f"{', '.join(show_flag(n, getattr(self, n)) for n in late) or 'none'}"
+            )
         if self.student_iterations and not self.teacher:
             raise ValueError("--student-iterations needs --teacher: the student is distilled "
                              "from the teacher this run trains")  # fmt: skip
+        if self.late_iterations and self.distill:
+            raise ValueError("--late-iterations changes the reward, which a distilled student "
+                             "does not learn from")  # fmt: skip
         if self.warm_start and self.distill:
             raise ValueError("--warm-start and --distill do not go together: a distilled "
                              "student learns from its teacher, from scratch")  # fmt: skip
@@ -411,6 +436,20 @@ class Training(TrainingBase[Env]):
                 f"--num-mini-batches must be <= --num-envs * --num-steps-per-env = {frames}, "
                 f"got {self.train.num_mini_batches}"
             )
+        for name, part, field_name in (
+            ("late_sigma", "shaping", "sigma"),
+            ("late_clearance_target", "costs", "clearance_target"),
+        ):
+            value = getattr(self.train, name)
+            if value is None:
+                continue
+            if getattr(self.env, part) is None:
+                raise ValueError(f"{show_flag(name, value)} changes --env.{part}, which this "
+                                 f"training has not (set one of its flags)")  # fmt: skip
+            try:
+                dataclasses.replace(getattr(self.env, part), **{field_name: value})
+            except ValueError as error:
+                raise ValueError(f"{show_flag(name, value)}: {error}") from None
         task = get_task(self.task)
         known = piece_catalog(task.pieces(), task.observation)
         for name in ("policy_obs", "critic_obs"):
@@ -487,6 +526,7 @@ def student_training(teacher: Training) -> Training:
     train = dataclasses.replace(
         teacher.train, teacher=False, distill=teacher.run.log_dir, warm_start="", policy_obs=blind,
         actor=teacher.train.student_actor, student_iterations=0, symmetry=False, critic_obs=(),
+        late_iterations=0, late_sigma=None, late_clearance_target=None,
     )  # fmt: skip
     run = dataclasses.replace(
         teacher.run, resume="", max_iterations=teacher.train.student_iterations,

@@ -19,6 +19,7 @@ import functools
 import importlib.metadata
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -43,6 +44,7 @@ from rwalk.rl.checkpoints import (
 from rwalk.rl.config import (
     ResumeConflict,
     RunConfig,
+    TrainConfig,
     Training,
     flag_of,
     leaves,
@@ -449,10 +451,7 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
             say(f"resumed from {resume[0]}: next iteration {runner.current_learning_iteration}")
         if group.main:
             write_record(log_dir / "config.json", args, TRAINER)
-        nominal_from = args.run.max_iterations - args.train.nominal_physics_iterations
-        checkpoint = _learn(args.run, runner, group, clock, nominal_from,
-                            args.train.nominal_physics_keep,
-                            args.train.nominal_physics_entropy_coef)  # fmt: skip
+        checkpoint = _learn(args.run, runner, group, clock, _stages(args, runner, say))
         if args.run.logger == "wandb" and group.main:
             from rwalk.rl.wandb_writer import WandbWriter
 
@@ -463,8 +462,24 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
     return checkpoint, args
 
 
-def _last_stage(runner, keep: tuple[str, ...], entropy: float | None, iteration: int,
-                say) -> None:  # fmt: skip
+def _stages(args: Training, runner, say) -> list[tuple[int, Callable[[int], None]]]:
+    """The run's last stages, each as (its first iteration, what begins it at an
+    iteration): the model's physics (--nominal-physics-iterations, where the physics is
+    randomised) and the reward's late values (--late-iterations)."""
+    train, end = args.train, args.run.max_iterations
+    stages = []
+    if train.nominal_physics_iterations and runner.env.core.physics.randomization is not None:
+        stages.append((end - train.nominal_physics_iterations, functools.partial(
+            _nominal_physics, runner, train.nominal_physics_keep,
+            train.nominal_physics_entropy_coef, say=say)))  # fmt: skip
+    if train.late_iterations:
+        stages.append((end - train.late_iterations,
+                       functools.partial(_late_reward, runner, train, say=say)))  # fmt: skip
+    return stages
+
+
+def _nominal_physics(runner, keep: tuple[str, ...], entropy: float | None, iteration: int,
+                     *, say) -> None:  # fmt: skip
     """From now on new episodes draw the model's own physics but for the ranges ``keep``,
     and PPO's entropy bonus is ``entropy`` (None: as it was)."""
     physics = runner.env.core.physics
@@ -478,17 +493,38 @@ def _last_stage(runner, keep: tuple[str, ...], entropy: float | None, iteration:
         say(f"[rwalk] iteration {iteration}: entropy bonus {entropy:g}", flush=True)
 
 
-def _after_updates(alg, count: int, then) -> None:
-    """Call ``then`` once, after ``alg``'s next ``count`` updates: rsl-rl's ``learn()``
-    updates once per iteration, after its rollout, so the next iteration collects with
-    what ``then`` changed, without ending the call (and its checkpoint chunk) there."""
-    update, done = alg.update, [0]
+def _late_reward(runner, train: TrainConfig, iteration: int, *, say) -> None:
+    """From now on the reward has the late stage's values (--late-sigma,
+    --late-clearance-target)."""
+    core = runner.env.core
+    late = {"env.shaping.sigma": train.late_sigma,
+            "env.costs.clearance_target": train.late_clearance_target}  # fmt: skip
+    shaping = core.config.shaping
+    if train.late_sigma is not None:
+        shaping = dataclasses.replace(shaping, sigma=train.late_sigma)
+    costs = core.config.costs
+    if train.late_clearance_target is not None:
+        costs = dataclasses.replace(costs, clearance_target=train.late_clearance_target)
+    core.set_reward(costs=costs, shaping=shaping)
+    values = ", ".join(show_flag(k, v) for k, v in late.items() if v is not None)
+    say(f"[rwalk] iteration {iteration}: the reward's late values {values}", flush=True)
+
+
+def _after_updates(alg, due: dict[int, list[Callable[[], None]]]) -> None:
+    """Call each of ``due[count]`` once, after ``alg``'s next ``count`` updates: rsl-rl's
+    ``learn()`` updates once per iteration, after its rollout, so the next iteration
+    collects with what they changed, without ending the call (and its checkpoint chunk)
+    there."""
+    if not due:
+        return
+    update, done, last = alg.update, [0], max(due)
 
     def counted(*args, **kwargs):
         result = update(*args, **kwargs)
         done[0] += 1
-        if done[0] == count:
+        if done[0] == last:
             alg.update = update
+        for then in due.get(done[0], ()):
             then()
         return result
 
@@ -500,32 +536,30 @@ def _learn(
     runner: SafeRunner,
     group: distributed.Group,
     clock: float,
-    nominal_from: int,
-    keep: tuple[str, ...] = (),
-    entropy: float | None = None,
+    stages: list[tuple[int, Callable[[int], None]]] = (),
 ) -> Path:
     """``runner.learn`` in chunks up to each checkpoint, until --max-iterations or the
-    time budget; from iteration ``nominal_from`` on (--nominal-physics-iterations) new
-    episodes draw the model's own physics but for the ranges named in ``keep``, and PPO's
-    entropy bonus is ``entropy`` (None: unchanged). Returns the last checkpoint's path."""
+    time budget; each of ``stages`` (its first iteration, what begins it: ``_stages``)
+    begins before its first iteration collects, or at the first where the run resumes
+    past it. Returns the last checkpoint's path."""
     say = print if group.main else lambda *_, **__: None
     first = runner.current_learning_iteration
     budget = args.max_minutes * 60.0
     learning_since = time.perf_counter()  # per-iteration time excludes building the envs
     checkpoint = Path(args.log_dir) / f"model_{first}.pt"
-    physics = runner.env.core.physics
-    stage = max(nominal_from, first)  # the first iteration at the model's physics
+    stages = [(max(start, first), begin) for start, begin in stages]  # resumed past one
     while runner.current_learning_iteration < args.max_iterations:
         it = runner.current_learning_iteration
         # One learn() call up to the next checkpoint: rsl-rl saves the multiples of
         # save_interval in its loop and the call's last iteration after it.
         last = min(-(-it // args.save_interval) * args.save_interval, args.max_iterations - 1)
-        if physics.randomization is not None and it <= stage <= last:
-            begin = functools.partial(_last_stage, runner, keep, entropy, stage, say)
-            if stage == it:
-                begin()
-            else:  # within the call, before iteration ``stage`` collects
-                _after_updates(runner.alg, stage - it, begin)
+        due: dict[int, list[Callable[[], None]]] = {}
+        for start, begin in stages:
+            if it <= start <= last:  # within the call, before iteration ``start`` collects
+                due.setdefault(start - it, []).append(functools.partial(begin, start))
+        for begin in due.pop(0, ()):
+            begin()
+        _after_updates(runner.alg, due)
         runner.learn(num_learning_iterations=last + 1 - it, init_at_random_ep_len=it == first)
         if runner.logger.writer is not None:  # rank 0's; learn() opens one each call
             runner.logger.writer.close()
