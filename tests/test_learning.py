@@ -136,6 +136,7 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
         (["--late-sigma", "0.04"], "--late-clearance-target), got --late-sigma 0.04"),
         (["--late-iterations", "-1", "--late-sigma", "0.04"], "--late-iterations must be >= 0"),
         (["--late-iterations", "5", "--late-sigma", "nan"], "--late-sigma must be a finite"),
+        (["--late-iterations", "5", "--late-tracking", "-1"], "--late-tracking must be >= 0"),
         (
             ["--late-iterations", "5", "--late-clearance-target", "-0.01"],
             "--late-clearance-target must be a finite number > 0, got -0.01",
@@ -337,14 +338,14 @@ def test_the_late_stage_changes_the_rewards_values_and_resumes_into_it(tmp_path,
     train.main([*shaped, "--max-iterations", "4", "--save-interval", "4",
                 "--nominal-physics-iterations", "1", "--late-iterations", "2",
                 "--late-sigma", "0.04", "--late-clearance-target", "0.025",
-                "--log-dir", str(run)])  # fmt: skip
+                "--late-tracking", "200", "--log-dir", str(run)])  # fmt: skip
     out = capsys.readouterr().out
-    late = ("iteration 2: the reward's late values --env.shaping.sigma 0.04, "
-            "--env.costs.clearance-target 0.025")  # fmt: skip
+    late = ("iteration 2: the reward's late values --env.shaping.tracking 200, "
+            "--env.shaping.sigma 0.04, --env.costs.clearance-target 0.025")  # fmt: skip
     physics = "iteration 3: new episodes draw the model's own physics but for friction"
     assert late in out and physics in out and out.index(late) < out.index(physics)
     ((costs, shaping),) = calls
-    assert (shaping.sigma, shaping.tracking, costs.clearance_target) == (0.04, 300.0, 0.025)
+    assert (shaping.sigma, shaping.tracking, costs.clearance_target) == (0.04, 200.0, 0.025)
     assert costs.clearance == GaitCosts().clearance  # the other values as they were
     # the iterations before the stage are the plain run's, bit for bit
     plain = tmp_path / "plain"
@@ -357,7 +358,8 @@ def test_the_late_stage_changes_the_rewards_values_and_resumes_into_it(tmp_path,
     calls.clear()
     train.main([*shaped, "--max-iterations", "5", "--nominal-physics-iterations", "1",
                 "--late-iterations", "2", "--late-sigma", "0.04", "--late-clearance-target",
-                "0.025", "--resume", str(run), "--log-dir", str(run)])  # fmt: skip
+                "0.025", "--late-tracking", "200", "--resume", str(run),
+                "--log-dir", str(run)])  # fmt: skip
     assert "iteration 4: the reward's late values" in capsys.readouterr().out
     assert len(calls) == 1
 

@@ -47,6 +47,13 @@ MAX_ITERATIONS = 10**9
 #: Most layers, and most units in a layer, of the actor's and the critic's MLPs.
 MAX_LAYERS = 8
 MAX_WIDTH = 4096
+#: --late-iterations' values: the TrainConfig field, and the EnvConfig part and field it
+#: sets in that stage.
+LATE_VALUES = {
+    "late_tracking": ("shaping", "tracking"),
+    "late_sigma": ("shaping", "sigma"),
+    "late_clearance_target": ("costs", "clearance_target"),
+}
 #: rwalk-train's --logger choices (rsl-rl's writers).
 LOGGERS = ("tensorboard", "wandb")
 
@@ -194,10 +201,13 @@ class TrainConfig:
     throughout); 0 lets the action noise shrink while the stage learns its precision, which
     bought precision and cost new-map falls on one seed of two (docs/learning.md)"""
     late_iterations: int = 0
-    """the last N of --max-iterations train with the reward's values that --late-sigma
-    and --late-clearance-target give (the costs moved on a policy that has climbed the
-    curriculum; docs/adaptive.md), the optimizer, curriculum and episodes going on; 0: no
-    such stage"""
+    """the last N of --max-iterations train with the reward's values that --late-tracking,
+    --late-sigma and --late-clearance-target give (the costs moved on a policy that has
+    climbed the curriculum; docs/adaptive.md), the optimizer, curriculum and episodes
+    going on; 0: no such stage"""
+    late_tracking: float | None = None
+    """--late-iterations: the training kernel's weight (--env.shaping.tracking) in that
+    stage; None: unchanged"""
     late_sigma: float | None = None
     """--late-iterations: the training kernel's half-width (--env.shaping.sigma) in that
     stage, m/s; None: unchanged"""
@@ -227,13 +237,13 @@ class TrainConfig:
                                  f"({', '.join(PHYSICS_RANGES)}), got {name!r}")  # fmt: skip
         require_at_least(self, 0, "late_iterations")
         require_at_most(self, MAX_ITERATIONS, "late_iterations")
-        late = [name for name in ("late_sigma", "late_clearance_target")
-                if getattr(self, name) is not None]  # fmt: skip
-        require_positive(self, *late)
+        late = [name for name in LATE_VALUES if getattr(self, name) is not None]
+        require_positive(self, *(name for name in late if name != "late_tracking"))
+        require_at_least(self, 0, *late)
         if bool(late) != bool(self.late_iterations):
             raise ValueError(
                 f"--late-iterations {self.late_iterations} and the stage's values go together "
-                f"(--late-sigma, --late-clearance-target), got "
+                f"({', '.join(map(flag, LATE_VALUES))}), got "
                 f"{', '.join(show_flag(n, getattr(self, n)) for n in late) or 'none'}"
             )
         if self.student_iterations and not self.teacher:
@@ -436,20 +446,7 @@ class Training(TrainingBase[Env]):
                 f"--num-mini-batches must be <= --num-envs * --num-steps-per-env = {frames}, "
                 f"got {self.train.num_mini_batches}"
             )
-        for name, part, field_name in (
-            ("late_sigma", "shaping", "sigma"),
-            ("late_clearance_target", "costs", "clearance_target"),
-        ):
-            value = getattr(self.train, name)
-            if value is None:
-                continue
-            if getattr(self.env, part) is None:
-                raise ValueError(f"{show_flag(name, value)} changes --env.{part}, which this "
-                                 f"training has not (set one of its flags)")  # fmt: skip
-            try:
-                dataclasses.replace(getattr(self.env, part), **{field_name: value})
-            except ValueError as error:
-                raise ValueError(f"{show_flag(name, value)}: {error}") from None
+        late_reward(self.train, self.env)  # refused here, not at the stage's start
         task = get_task(self.task)
         known = piece_catalog(task.pieces(), task.observation)
         for name in ("policy_obs", "critic_obs"):
@@ -517,6 +514,29 @@ def resolved(training: Training) -> Training:
     return dataclasses.replace(training, train=train)
 
 
+def late_reward(train: TrainConfig, env: EnvConfig) -> dict[str, Any]:
+    """The reward's parts of ``env`` that --late-iterations' stage sets: {"shaping": its
+    Shaping, "costs": its GaitCosts}, each with the values of ``train``'s late flags.
+
+    Raises:
+        ValueError: naming the flag, where ``env`` has not the part or the value is bad.
+    """
+    parts: dict[str, Any] = {}
+    for name, (part, field_name) in LATE_VALUES.items():
+        value = getattr(train, name)
+        if value is None:
+            continue
+        if getattr(env, part) is None:
+            raise ValueError(f"{show_flag(name, value)} changes --env.{part}, which this "
+                             f"training has not (set one of its flags)")  # fmt: skip
+        try:
+            parts[part] = dataclasses.replace(parts.get(part, getattr(env, part)),
+                                              **{field_name: value})  # fmt: skip
+        except ValueError as error:
+            raise ValueError(f"{show_flag(name, value)}: {error}") from None
+    return parts
+
+
 def student_training(teacher: Training) -> Training:
     """The student stage of ``teacher`` (a run with --student-iterations): distil its
     LOG_DIR's teacher into a --student-actor model in LOG_DIR/student for
@@ -526,7 +546,7 @@ def student_training(teacher: Training) -> Training:
     train = dataclasses.replace(
         teacher.train, teacher=False, distill=teacher.run.log_dir, warm_start="", policy_obs=blind,
         actor=teacher.train.student_actor, student_iterations=0, symmetry=False, critic_obs=(),
-        late_iterations=0, late_sigma=None, late_clearance_target=None,
+        late_iterations=0, **dict.fromkeys(LATE_VALUES),
     )  # fmt: skip
     run = dataclasses.replace(
         teacher.run, resume="", max_iterations=teacher.train.student_iterations,

@@ -42,11 +42,13 @@ from rwalk.rl.checkpoints import (
     run_lock,
 )
 from rwalk.rl.config import (
+    LATE_VALUES,
     ResumeConflict,
     RunConfig,
     TrainConfig,
     Training,
     flag_of,
+    late_reward,
     leaves,
     mirrored,
     resume_conflict,
@@ -58,7 +60,7 @@ from rwalk.rl.rsl_rl_env import RslRlVecEnv
 from rwalk.rl.runner import SafeDistillationRunner, SafeRunner
 from rwalk.starts import SettleError
 from rwalk.threads import SharedCores
-from rwalk.validation import show_flag
+from rwalk.validation import flag, show_flag
 
 PER_RANK_FLAGS = ("threads",)
 """Flags the ranks of one training may set differently: a machine's own resources."""
@@ -494,19 +496,12 @@ def _nominal_physics(runner, keep: tuple[str, ...], entropy: float | None, itera
 
 
 def _late_reward(runner, train: TrainConfig, iteration: int, *, say) -> None:
-    """From now on the reward has the late stage's values (--late-sigma,
+    """From now on the reward has the late stage's values (--late-tracking, --late-sigma,
     --late-clearance-target)."""
-    core = runner.env.core
-    late = {"env.shaping.sigma": train.late_sigma,
-            "env.costs.clearance_target": train.late_clearance_target}  # fmt: skip
-    shaping = core.config.shaping
-    if train.late_sigma is not None:
-        shaping = dataclasses.replace(shaping, sigma=train.late_sigma)
-    costs = core.config.costs
-    if train.late_clearance_target is not None:
-        costs = dataclasses.replace(costs, clearance_target=train.late_clearance_target)
-    core.set_reward(costs=costs, shaping=shaping)
-    values = ", ".join(show_flag(k, v) for k, v in late.items() if v is not None)
+    runner.env.core.set_reward(**late_reward(train, runner.env.core.config))
+    values = ", ".join(f"{flag(f'env.{part}.{field}')} {getattr(train, name):g}"
+                       for name, (part, field) in LATE_VALUES.items()
+                       if getattr(train, name) is not None)  # fmt: skip
     say(f"[rwalk] iteration {iteration}: the reward's late values {values}", flush=True)
 
 
@@ -555,9 +550,9 @@ def _learn(
         last = min(-(-it // args.save_interval) * args.save_interval, args.max_iterations - 1)
         due: dict[int, list[Callable[[], None]]] = {}
         for start, begin in stages:
-            if it <= start <= last:  # within the call, before iteration ``start`` collects
+            if it <= start <= last:  # it begins before iteration ``start`` collects
                 due.setdefault(start - it, []).append(functools.partial(begin, start))
-        for begin in due.pop(0, ()):
+        for begin in due.pop(0, ()):  # now; the others within the call
             begin()
         _after_updates(runner.alg, due)
         runner.learn(num_learning_iterations=last + 1 - it, init_at_random_ep_len=it == first)
