@@ -336,15 +336,17 @@ class Core:
         config = dataclasses.replace(self.config, **changes)
         if config.costs is not None:
             config.costs.check_reach(self.world.geometry)
-        old = self.task.config
-        self.task.config = config
-        terms = self.task.reward_terms()
+        old, self.task.config = self.task.config, config
+        try:
+            terms = self.task.reward_terms()
+        finally:
+            self.task.config = old
         names, before = [t.name for t in terms], [t.name for t in self.terms]
         if names != before:
-            self.task.config = old
             raise ValueError(f"set_reward changes the values of the reward's terms, not which "
                              f"terms there are: {before} would become {names}")  # fmt: skip
-        self.config, self.terms = config, terms
+        self.config = self.task.config = config
+        self.terms = terms
 
     def phase_features(self) -> Tensor:
         """(sin 2πφ, cos 2πφ) of the gait phase. Shape: (N, 2)."""

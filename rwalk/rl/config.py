@@ -446,6 +446,9 @@ class Training(TrainingBase[Env]):
                 f"--num-mini-batches must be <= --num-envs * --num-steps-per-env = {frames}, "
                 f"got {self.train.num_mini_batches}"
             )
+        late, end = self.train.late_iterations, self.run.max_iterations
+        if late > end:
+            raise ValueError(f"--late-iterations must be <= --max-iterations {end}, got {late}")
         late_reward(self.train, self.env)  # refused here, not at the stage's start
         task = get_task(self.task)
         known = piece_catalog(task.pieces(), task.observation)
