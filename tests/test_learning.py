@@ -287,6 +287,13 @@ SHORT = [*TINY[:_CUT], *TINY[_CUT + 2 :], "--max-episode-steps", "4"]
 NOMINAL = torch.tensor(NOMINAL_PARAMS, dtype=torch.float64)
 
 
+def assert_same_actor(ours: Path, theirs: Path) -> None:
+    """The two checkpoints' actors are equal bit for bit."""
+    mine, other = (load_checkpoint(path)["actor_state_dict"] for path in (ours, theirs))
+    for name, tensor in other.items():
+        assert torch.equal(mine[name], tensor), name
+
+
 def test_the_last_iterations_draw_the_models_physics(tmp_path, draws, capsys, monkeypatch):
     entropies = []
     update = PPO.update
@@ -312,9 +319,7 @@ def test_the_last_iterations_draw_the_models_physics(tmp_path, draws, capsys, mo
     plain = tmp_path / "plain"
     train.main([*SHORT, "--max-iterations", "2", "--nominal-physics-iterations", "0",
                 "--log-dir", str(plain)])  # fmt: skip
-    ours, theirs = load_checkpoint(run / "model_1.pt"), load_checkpoint(plain / "model_1.pt")
-    for name, tensor in theirs["actor_state_dict"].items():
-        assert torch.equal(ours["actor_state_dict"][name], tensor), name
+    assert_same_actor(run / "model_1.pt", plain / "model_1.pt")
     # resumed past its start (the last 1 of 4), it narrows them at its first iteration
     draws.clear()
     train.main([*SHORT, "--max-iterations", "4", "--nominal-physics-iterations", "1",
@@ -355,9 +360,7 @@ def test_the_late_stage_changes_the_rewards_values_and_resumes_into_it(tmp_path,
     plain = tmp_path / "plain"
     train.main([*shaped, "--max-iterations", "2", "--nominal-physics-iterations", "0",
                 "--log-dir", str(plain)])  # fmt: skip
-    ours, theirs = load_checkpoint(run / "model_0.pt"), load_checkpoint(plain / "model_0.pt")
-    for name, tensor in theirs["actor_state_dict"].items():
-        assert torch.equal(ours["actor_state_dict"][name], tensor), name
+    assert_same_actor(run / "model_0.pt", plain / "model_0.pt")  # model_0: before it
     # resumed past its start, the stage begins at the first iteration
     calls.clear()
     train.main([*shaped, "--max-iterations", "5", "--nominal-physics-iterations", "1",
