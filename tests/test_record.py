@@ -230,9 +230,11 @@ def test_resume_refuses_a_contradicting_nested_flag_naming_both_values(tmp_path,
     assert json.loads((folder / "config.json").read_text())["env"]["costs"]["clearance"] == 3000.0
 
 
-def test_resume_goes_on_in_the_runs_own_folder_with_its_own_seed(tmp_path, monkeypatch):
-    """Without --log-dir and --seed, a resumed run writes to the folder it was resumed
-    from with the seed it trained with, not to the defaults (logs/rwalk, seed 0)."""
+def test_resume_goes_on_in_the_runs_own_folder_with_its_own_seed_and_length(tmp_path,
+                                                                          monkeypatch):  # fmt: skip
+    """Without --log-dir, --seed and --max-iterations, a resumed run writes to the folder
+    it was resumed from with the seed it trained with, up to its own last iteration, not
+    with the defaults (logs/rwalk, seed 0, 300 iterations)."""
     monkeypatch.chdir(tmp_path)
     folder = tmp_path / "runs" / "mine"
     tiny = ["--num-envs", "4", "--num-steps-per-env", "4", "--settle-steps", "2",
@@ -244,9 +246,22 @@ def test_resume_goes_on_in_the_runs_own_folder_with_its_own_seed(tmp_path, monke
         assert (training.run.log_dir, training.run.seed) == (str(folder), 3)
     elsewhere = train.parse_args(["--resume", str(folder), "--log-dir", "other", "--seed", "5"])
     assert (elsewhere.run.log_dir, elsewhere.run.seed) == ("other", 5)
+    assert elsewhere.run.max_iterations == 1  # the run's own
     train.main(["--resume", str(folder), "--max-iterations", "2"])
     assert (folder / "model_1.pt").exists() and not (tmp_path / "logs").exists()
     assert json.loads((folder / "config.json").read_text())["run"]["seed"] == 3
+
+
+def test_a_plain_resume_keeps_a_long_runs_length_and_its_late_stage(tmp_path):
+    # the defaults' 300 iterations would cut a 400-iteration run and refuse its
+    # 350-iteration late stage, which counts back from the run's end
+    flags = ["--max-iterations", "400", "--late-iterations", "350", "--late-tracking", "1",
+             "--env.shaping.tracking", "0", "--log-dir", str(tmp_path)]  # fmt: skip
+    write_record(tmp_path / "config.json", train.parse_args(flags))
+    resumed = train.parse_args(["--resume", str(tmp_path)])
+    assert (resumed.run.max_iterations, resumed.train.late_iterations) == (400, 350)
+    shorter = train.parse_args(["--resume", str(tmp_path), "--max-iterations", "360"])
+    assert shorter.run.max_iterations == 360  # a run setting: the flag still sets it
 
 
 def test_the_torchrl_trainer_takes_the_same_nested_flags():

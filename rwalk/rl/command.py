@@ -90,8 +90,10 @@ def defaults(cls: type, argv: list[str], read_record) -> Any:
             saved = read_record(folder / "config.json")
         except (OSError, ValueError):
             saved = None  # --resume names it, before any work
-        if saved is not None:  # in its own folder with its own seed, unless flags say else
-            run = dataclasses.replace(run, log_dir=str(folder), seed=saved.run.seed)
+        if saved is not None:  # in its own folder with its own seed and length (its last
+            # stages count back from its end), unless flags say else
+            run = dataclasses.replace(run, log_dir=str(folder), seed=saved.run.seed,
+                                      max_iterations=saved.run.max_iterations)  # fmt: skip
             return dataclasses.replace(saved, run=run, num_envs=num_envs)
     values = {}
     for f in dataclasses.fields(Preset):

@@ -33,8 +33,8 @@ it. --resume goes on with the run's own record: only the run settings (--log-dir
 --seed, --resume, --overwrite, --max-iterations, --max-minutes, --save-interval,
 --threads, --export, --dist-timeout, --logger, --wandb-project, --run-name) and
 --num-envs may change; another value of any other field is refused, naming it. It
-writes to the resumed run's folder with the run's seed unless --log-dir or --seed
-names others.
+writes to the resumed run's folder with the run's seed and --max-iterations unless
+--log-dir, --seed or --max-iterations name others.
 
 --logger wandb sends the metrics to Weights & Biases as well (rsl-rl's writer; pip
 install 'rwalk[wandb]'; WANDB_MODE=offline keeps them local): one W&B run per
