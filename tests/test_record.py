@@ -13,9 +13,11 @@ import torch
 from rwalk import episodes, presets
 from rwalk.config import EnvConfig
 from rwalk.core import Core
+from rwalk.machine import describe
+from rwalk.rl import record
 from rwalk.rl.config import Training, student_training
 from rwalk.rl.legacy import TrainArgs, from_flags
-from rwalk.rl.record import ConfigError, read_record, record_of, write_record
+from rwalk.rl.record import ConfigError, read_machines, read_record, record_of, write_record
 from rwalk.rl.torchrl_config import TorchRLTraining
 from rwalk.runners import train, train_torchrl
 from rwalk.tasks import AdaptiveGaitConfig
@@ -261,6 +263,27 @@ def test_a_plain_resume_keeps_a_long_runs_length_and_its_late_stage(tmp_path):
     assert shorter.run.max_iterations == 360  # a run setting: the flag still sets it
 
 
+def test_a_record_lists_the_machines_its_run_trained_on(tmp_path, monkeypatch, capsys):
+    """A run repeats bit for bit on one machine only: its record names the machine, and a
+    resume on another one adds it and says so."""
+    folder = tmp_path / "run"
+    tiny = ["--num-envs", "4", "--num-steps-per-env", "4", "--settle-steps", "2",
+            "--max-episode-steps", "20", "--hidden-dims", "8", "--save-interval", "1",
+            "--no-export", "--log-dir", str(folder)]  # fmt: skip
+    train.main([*tiny, "--max-iterations", "1"])
+    train.main([*tiny, "--resume", str(folder), "--max-iterations", "2"])  # the same machine
+    assert json.loads((folder / "config.json").read_text())["machines"] == [describe()]
+    assert "another machine" not in capsys.readouterr().out
+    elsewhere = describe() | {"vector": "sse4_2 avx avx2 fma", "torch_cpu": "AVX2"}
+    monkeypatch.setattr(record, "describe", lambda: elsewhere)
+    train.main([*tiny, "--resume", str(folder), "--max-iterations", "3"])
+    out = capsys.readouterr().out
+    assert "note: this run trained on another machine or library version" in out
+    assert f"torch_cpu {describe()['torch_cpu']}" in out and "torch_cpu AVX2" in out
+    assert read_machines(folder / "config.json") == [describe(), elsewhere]
+    assert read_record(folder / "config.json").run.max_iterations == 3  # still a record
+
+
 def test_the_torchrl_trainer_takes_the_same_nested_flags():
     training = train_torchrl.parse_args(["--env.pushes.interval", "1.0", "2.0"])
     assert training.env.pushes.interval == (1.0, 2.0) and training.num_envs == 256
@@ -285,6 +308,8 @@ BAD_RECORDS = [
     ('{"schema": 2, "env": {}, "train": {"hidden_dims": [0]}}', "--hidden-dims must be sizes"),
     ('{"schema": 2, "env": {}, "preset": {"task": "fly"}}', "unknown task 'fly'"),
     ('{"schema": 2, "env": {"model_path": "' + "x" * 5000 + '"}}', "env.model_path must be a str"),
+    ('{"schema": 2, "env": {}, "machines": [{"cpu": 1}]}',
+     '"machines" must be a list of objects of strings'),
 ]  # fmt: skip
 
 

@@ -7,6 +7,10 @@ every field checked against its config (``rwalk.configdata``), never evaluated.
 Records of schema 1 (the run's flags under ``"args"``) are read through the one
 migration, ``rwalk.rl.legacy.from_flags``. Every refusal is a ``ConfigError`` that
 names the file and the field.
+
+A record also lists the machines the run trained on (``"machines"``,
+``rwalk.machine.describe``): a run repeats bit for bit on one machine, not across CPUs
+that round differently, and a resume on another machine adds it to the list.
 """
 
 from __future__ import annotations
@@ -17,6 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from rwalk.configdata import RecordError, decode, encode, shown
+from rwalk.machine import describe
+from rwalk.machine import shown as shown_machine
 from rwalk.rl.config import PREDATING, Preset, Training
 from rwalk.tasks.registry import get_task
 
@@ -33,16 +39,59 @@ class ConfigError(ValueError):
     and the field."""
 
 
-def record_of(training: Any, trainer: str = DEFAULT_TRAINER) -> dict[str, Any]:
-    """The JSON object of ``training``'s record."""
-    return {"schema": SCHEMA, "trainer": trainer, **encode(training)}
+def record_of(training: Any, trainer: str = DEFAULT_TRAINER,
+              machines: list[dict[str, str]] | None = None) -> dict[str, Any]:  # fmt: skip
+    """The JSON object of ``training``'s record (with ``machines``, where given)."""
+    extra = {"machines": machines} if machines else {}
+    return {"schema": SCHEMA, "trainer": trainer, **encode(training), **extra}
 
 
-def write_record(path: Path, training: Any, trainer: str = DEFAULT_TRAINER) -> None:
-    """Write ``training``'s record to ``path``, atomically."""
+def write_record(path: Path, training: Any, trainer: str = DEFAULT_TRAINER,
+                 resumed: Path | None = None) -> str | None:  # fmt: skip
+    """Write ``training``'s record to ``path``, atomically, with the machines it trained
+    on: this one, after those of the record ``resumed`` (the config.json of the run a
+    resume goes on from; None: a new run).
+
+    Returns:
+        A note when this machine is not the one the resumed run last trained on (the run
+        will not repeat bit for bit from here), else None.
+    """
     from rwalk.rl.checkpoints import atomic_write_text
 
-    atomic_write_text(Path(path), json.dumps(record_of(training, trainer), indent=2))
+    machines = read_machines(resumed) if resumed is not None and Path(resumed).is_file() else []
+    here, note = describe(), None
+    if machines[-1:] != [here]:
+        if machines:
+            note = (f"this run trained on another machine or library version "
+                    f"({shown_machine(machines[-1])}) and goes on on this one "
+                    f"({shown_machine(here)}): from here it does not repeat bit for bit; "
+                    f"config.json lists both")  # fmt: skip
+        machines.append(here)
+    atomic_write_text(Path(path), json.dumps(record_of(training, trainer, machines), indent=2))
+    return note
+
+
+def _machines(value: Any, name: str) -> list[dict[str, str]]:
+    """A record's ``"machines"`` value, checked: a list of objects of strings."""
+    if not isinstance(value, list) or not all(
+        isinstance(m, dict) and all(isinstance(k, str) and isinstance(v, str)
+                                    for k, v in m.items()) for m in value):  # fmt: skip
+        raise ConfigError(f'{name}: "machines" must be a list of objects of strings, got '
+                          f"{shown(value)}")  # fmt: skip
+    return value
+
+
+def read_machines(path: Path) -> list[dict[str, str]]:
+    """The machines a run's config.json (``path``) lists ([] for a record written before
+    the list).
+
+    Raises:
+        FileNotFoundError, ConfigError: naming the file.
+    """
+    saved = read_json(path)
+    if not isinstance(saved, dict):
+        raise ConfigError(f"{str(path)!r} is not an object of a run's configs")
+    return _machines(saved.get("machines", []), repr(str(path)))
 
 
 def decode_training(cls: type, data: Any, where: str = "") -> Any:
@@ -125,7 +174,8 @@ def read_record(path: Path, trainer: str = DEFAULT_TRAINER, cls: type = Training
         if schema != SCHEMA:
             raise ConfigError(f"{name} has schema {shown(schema)}; this rwalk reads schemas 1 "
                               f"and {SCHEMA} (a newer rwalk wrote it?)")  # fmt: skip
-        body = {k: v for k, v in saved.items() if k not in ("schema", "trainer")}
+        _machines(saved.get("machines", []), name)
+        body = {k: v for k, v in saved.items() if k not in ("schema", "trainer", "machines")}
         if cls is Training and isinstance(body.get("train"), dict):
             body["train"] = PREDATING | body["train"]
         return decode_training(cls, body)

@@ -176,10 +176,11 @@ def train(args, given: frozenset[str] | None = None) -> Path:
         claimed = resume and (resume[0], resume[1]["iteration"])
         claim_log_dir(log_dir, claimed, Path(run.resume).is_dir() if run.resume else False,
                       run.overwrite)  # fmt: skip
-        return _train(args, resume and resume[1], clock)
+        return _train(args, resume and resume[1], clock, resume and resume[0])
 
 
-def _train(args: TorchRLTraining, state: dict[str, Any] | None, clock: float) -> Path:
+def _train(args: TorchRLTraining, state: dict[str, Any] | None, clock: float,
+           resumed: Path | None = None) -> Path:  # fmt: skip
     run, setup, ppo = args.run, args, args.train
     log_dir = Path(run.log_dir)
     torch.manual_seed(run.seed)
@@ -189,7 +190,10 @@ def _train(args: TorchRLTraining, state: dict[str, Any] | None, clock: float) ->
                  for key, saved in (("policy", "obs_norm"), ("critic", "critic_norm"))}  # fmt: skip
     # With several collectors this env only gives the specs and the normalisation.
     env = make_env(setup, ppo.reward_scale, seed=run.seed, threads=run.threads, norms=norms)
-    write_record(log_dir / "config.json", args, TRAINER)
+    note = write_record(log_dir / "config.json", args, TRAINER,
+                        resumed and resumed.parent / "config.json")  # fmt: skip
+    if note:
+        print(f"[rwalk] note: {note}", flush=True)
     actor, critic = make_modules(ppo, env)
     first = 0
     if state is not None:

@@ -452,7 +452,10 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
             runner.current_learning_iteration += 1  # continue after the saved iteration
             say(f"resumed from {resume[0]}: next iteration {runner.current_learning_iteration}")
         if group.main:
-            write_record(log_dir / "config.json", args, TRAINER)
+            note = write_record(log_dir / "config.json", args, TRAINER,
+                                resume and resume[0].parent / "config.json")  # fmt: skip
+            if note:
+                say(f"note: {note}")
         checkpoint = _learn(args.run, runner, group, clock, _stages(args, runner, say))
         if args.run.logger == "wandb" and group.main:
             from rwalk.rl.wandb_writer import WandbWriter
