@@ -205,8 +205,7 @@ class TrainConfig:
     """the last N of --max-iterations train with the reward's values that --late-tracking,
     --late-sigma and --late-clearance-target give (the costs moved on a policy that has
     climbed the curriculum; docs/adaptive.md), the optimizer, curriculum and episodes
-    going on (a stage longer than the run: all of it, as a resume that shortens a run
-    leaves it); 0: no such stage; None: the task's stage where the physics is randomised
+    going on; 0: no such stage; None: the task's stage where the physics is randomised
     (Task.late_stage: residual_walk the last sixth, 50 of the default 300, with the speed
     kernel at --late-tracking 200, its terms at weight 0 before; the late flags given
     replace its values; adaptive_gait none), else 0"""
@@ -452,8 +451,12 @@ class Training(TrainingBase[Env]):
                 f"--num-mini-batches must be <= --num-envs * --num-steps-per-env = {frames}, "
                 f"got {self.train.num_mini_batches}"
             )
-        if self.train.late_iterations is not None:  # else resolved() writes it out, then
-            late_reward(self.train, self.env)  # checks: refused here, not at the stage's start
+        late, end = self.train.late_iterations, self.run.max_iterations
+        if late is not None:  # else resolved() writes the task's stage out, then checks
+            if late > end:
+                raise ValueError(f"--late-iterations must be <= --max-iterations {end}, got "
+                                 f"{late}")  # fmt: skip
+            late_reward(self.train, self.env)  # refused here, not at the stage's start
         task = get_task(self.task)
         known = piece_catalog(task.pieces(), task.observation)
         for name in ("policy_obs", "critic_obs"):
