@@ -1,10 +1,10 @@
 """The machine a run trains on: what decides how its arithmetic rounds.
 
-A training repeats bit for bit on one machine, whatever its thread count. Another CPU
-can round differently: torch and numpy pick their vector kernels when they start (AVX2,
-AVX-512, ...), and 300 PPO iterations carry a difference in the last bit into another
-policy. A run's record (``rwalk.rl.record``) keeps the machines it trained on, so that
-such a difference shows.
+A training repeats bit for bit on one machine at one torch thread count (on some CPUs
+at any count; docs/learning.md). Another CPU can round differently: torch and numpy
+pick their vector kernels when they start (AVX2, AVX-512, ...), and 300 PPO iterations
+carry a difference in the last bit into another policy. A run's record
+(``rwalk.rl.record``) keeps the machines it trained on, so that such a difference shows.
 """
 
 from __future__ import annotations
