@@ -25,25 +25,27 @@ VECTOR_FLAGS: tuple[str, ...] = (
 CPUINFO = Path("/proc/cpuinfo")
 
 
-def _cpuinfo(key: str) -> str | None:
-    """The first ``key`` line's value of /proc/cpuinfo, or None (not Linux, no such key)."""
+def _cpuinfo() -> dict[str, str]:
+    """Each key of /proc/cpuinfo with its first value ({} where there is none: not Linux)."""
     try:
         text = CPUINFO.read_text(errors="replace")
     except OSError:
-        return None
+        return {}
+    info: dict[str, str] = {}
     for line in text.splitlines():
         name, colon, value = line.partition(":")
-        if colon and name.strip() == key:
-            return value.strip()
-    return None
+        if colon:
+            info.setdefault(name.strip(), value.strip())
+    return info
 
 
 def describe() -> dict[str, str]:
     """This machine as a run's record keeps it: the CPU's model and vector instructions,
     the vector kernels torch chose, and the versions of the libraries that compute a run."""
-    flags = set((_cpuinfo("flags") or "").split())
+    info = _cpuinfo()
+    flags = set(info.get("flags", "").split())
     return {
-        "cpu": _cpuinfo("model name") or platform.processor() or platform.machine(),
+        "cpu": info.get("model name") or platform.processor() or platform.machine(),
         "vector": " ".join(flag for flag in VECTOR_FLAGS if flag in flags),
         "torch_cpu": torch.backends.cpu.get_cpu_capability(),
         "torch": torch.__version__,
