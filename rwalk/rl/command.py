@@ -130,4 +130,7 @@ def parse_training(cls: type, argv: list[str] | None, prog: str, description: st
         refusal = symmetry_refusal(training.train)  # the default adapts, a flag does not
         if refusal:
             usage_error(prog, refusal)
-    return training.resolved()
+    try:
+        return training.resolved()
+    except ValueError as error:  # a rule written out that the flags contradict
+        usage_error(prog, str(error))

@@ -27,6 +27,7 @@ from rwalk.config import MAX_ENVS, MAX_THREADS, EnvConfig
 from rwalk.observations import PRIVILEGED_PIECES, piece_catalog
 from rwalk.presets import SETTLE_POOL_FRACTION, training_env
 from rwalk.randomization import PHYSICS_RANGES
+from rwalk.rewards import Shaping
 from rwalk.rl.distributed import DEFAULT_TIMEOUT_S
 from rwalk.rng import SEED_LIMIT
 from rwalk.tasks.registry import get_task
@@ -200,11 +201,15 @@ class TrainConfig:
     """--nominal-physics-iterations: PPO's entropy bonus in that stage (None: --entropy-coef
     throughout); 0 lets the action noise shrink while the stage learns its precision, which
     bought precision and cost new-map falls on one seed of two (docs/learning.md)"""
-    late_iterations: int = 0
+    late_iterations: int | None = None
     """the last N of --max-iterations train with the reward's values that --late-tracking,
     --late-sigma and --late-clearance-target give (the costs moved on a policy that has
     climbed the curriculum; docs/adaptive.md), the optimizer, curriculum and episodes
-    going on; 0: no such stage"""
+    going on (a stage longer than the run: all of it, as a resume that shortens a run
+    leaves it); 0: no such stage; None: the task's stage where the physics is randomised
+    (Task.late_stage: residual_walk the last sixth, 50 of the default 300, with the speed
+    kernel at --late-tracking 200, its terms at weight 0 before; the late flags given
+    replace its values; adaptive_gait none), else 0"""
     late_tracking: float | None = None
     """--late-iterations: the training kernel's weight (--env.shaping.tracking) in that
     stage; None: unchanged"""
@@ -235,12 +240,13 @@ class TrainConfig:
             if name not in PHYSICS_RANGES:
                 raise ValueError(f"--nominal-physics-keep names ranges of --env.randomization "
                                  f"({', '.join(PHYSICS_RANGES)}), got {name!r}")  # fmt: skip
-        require_at_least(self, 0, "late_iterations")
-        require_at_most(self, MAX_ITERATIONS, "late_iterations")
+        if self.late_iterations is not None:
+            require_at_least(self, 0, "late_iterations")
+            require_at_most(self, MAX_ITERATIONS, "late_iterations")
         late = [name for name in LATE_VALUES if getattr(self, name) is not None]
         require_positive(self, *(name for name in late if name != "late_tracking"))
         require_at_least(self, 0, *late)
-        if bool(late) != bool(self.late_iterations):
+        if self.late_iterations is not None and bool(late) != bool(self.late_iterations):
             raise ValueError(
                 f"--late-iterations {self.late_iterations} and the stage's values go together "
                 f"({', '.join(map(flag, LATE_VALUES))}), got "
@@ -446,10 +452,8 @@ class Training(TrainingBase[Env]):
                 f"--num-mini-batches must be <= --num-envs * --num-steps-per-env = {frames}, "
                 f"got {self.train.num_mini_batches}"
             )
-        late, end = self.train.late_iterations, self.run.max_iterations
-        if late > end:
-            raise ValueError(f"--late-iterations must be <= --max-iterations {end}, got {late}")
-        late_reward(self.train, self.env)  # refused here, not at the stage's start
+        if self.train.late_iterations is not None:  # else resolved() writes it out, then
+            late_reward(self.train, self.env)  # checks: refused here, not at the stage's start
         task = get_task(self.task)
         known = piece_catalog(task.pieces(), task.observation)
         for name in ("policy_obs", "critic_obs"):
@@ -509,12 +513,38 @@ def resolved(training: Training) -> Training:
     # a stage's entropy bonus is PPO's: none without a stage, none for a distilled student
     ppo = stage and not training.train.distill
     entropy = training.train.nominal_physics_entropy_coef if ppo else None
+    env, late = _late_stage(task, training)
     train = dataclasses.replace(
         training.train, policy_obs=groups["policy"], critic_obs=groups["critic"],
         nominal_physics_iterations=stage, nominal_physics_keep=keep,
-        nominal_physics_entropy_coef=entropy,
+        nominal_physics_entropy_coef=entropy, **late,
     )  # fmt: skip
-    return dataclasses.replace(training, train=train)
+    return dataclasses.replace(training, env=env, train=train)
+
+
+def _late_stage(task, training: Training) -> tuple[EnvConfig, dict[str, Any]]:
+    """The env and the late fields of ``training`` with its late stage written out: as
+    given, or (--late-iterations None) the task's own where the physics is randomised
+    (``Task.late_stage``, the late flags given replacing its values; where it moves the
+    speed kernel of an env without one, the kernel's terms are added at weight 0,
+    ``Shaping()``: exact zeros before the stage)."""
+    train, env = training.train, training.env
+    if train.late_iterations is not None:
+        return env, {}
+    given = {name: value for name in LATE_VALUES if (value := getattr(train, name)) is not None}
+    own = task.late_stage if env.randomization is not None and not train.distill else None
+    share, values = own or (0.0, {})
+    late = round(share * training.run.max_iterations)
+    if not late:
+        if given:
+            name, value = next(iter(given.items()))
+            raise ValueError(f"{show_flag(name, value)} needs --late-iterations N: this "
+                             f"training has no late stage of its own")  # fmt: skip
+        return env, {"late_iterations": 0}
+    values = values | given
+    if env.shaping is None and any(LATE_VALUES[name][0] == "shaping" for name in values):
+        env = dataclasses.replace(env, shaping=Shaping())
+    return env, {"late_iterations": late, **values}
 
 
 def late_reward(train: TrainConfig, env: EnvConfig) -> dict[str, Any]:
@@ -562,7 +592,7 @@ def student_training(teacher: Training) -> Training:
 #: TrainConfig's fields whose default changed after runs were recorded without them (a
 #: schema-2 record written before the field, every schema-1 record): the value such a
 #: run trained with.
-PREDATING = {"nominal_physics_iterations": 0}
+PREDATING = {"nominal_physics_iterations": 0, "late_iterations": 0}
 
 
 #: Fields that may differ from the run's own on --resume: the run's settings (where it

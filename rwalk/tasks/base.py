@@ -65,6 +65,10 @@ class Task:
     """rwalk-train's default --nominal-physics-iterations for this task where the physics
     is randomised, as a share of --max-iterations: the last iterations drawing the
     model's own physics (docs/learning.md)."""
+    late_stage: ClassVar[tuple[float, dict[str, float]] | None] = None
+    """rwalk-train's default --late-iterations for this task where the physics is
+    randomised: (its share of --max-iterations, the stage's values: ``{"late_tracking":
+    200.0}`` is --late-tracking 200); None: no such stage (docs/learning.md)."""
     action_fields: ClassVar[tuple[str, ...]] = ()
     """Config fields that say what the action's values mean beyond its layout: a policy
     acts only in an env whose are its training's (``rwalk.evaluation.load_policy``)."""
