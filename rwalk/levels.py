@@ -15,7 +15,8 @@ Kinds, at difficulty d (maxima in :class:`TerrainLevels`):
 - ``slopes``: one ramp up then down along x, rise over run ``d * slope``.
 - ``steps``: stairs up then down along x, treads ``step_tread`` long, rise ``d * step_height``.
 - ``stones``: square stones ``stone_size`` wide at height 0 with gaps ``gap_depth`` deep and
-  ``round(d * stone_gap / cell)`` samples wide (none below half a cell).
+  ``round(d * stone_gap / cell)`` samples wide (none below half a cell); with ``gap_ramp``,
+  gaps at least one sample wide from level 1 and ``d * gap_depth`` deep.
 - ``flat``: flat at every level (not in the default map: ``kinds=("flat", *DEFAULT_KINDS)``
   keeps a fifth of the envs on flat ground, as mjlab's and legged_gym's maps keep some).
 
@@ -82,6 +83,11 @@ class TerrainLevels:
     """Width of the gaps between stones at difficulty 1, m (rounded to whole cells)."""
     gap_depth: float = 0.05
     """Depth of the gaps between stones, m (at every level that has gaps)."""
+    gap_ramp: bool = False
+    """Stones: gaps at least one sample wide from level 1, ``d * gap_depth`` deep, so that
+    the gaps deepen level by level as the other kinds' obstacles grow; False: the full
+    depth wherever a gap is a sample or more wide (the default map: flat stones at levels
+    0-2, gaps 5 cm deep from level 3)."""
     start_level: int = 0
     """Level of every env at its first reset."""
     curriculum: bool = True
@@ -139,7 +145,7 @@ class TerrainLevels:
                 f"start_level {self.start_level!r} is a terrain level outside the map "
                 f"(levels 0..{self.levels - 1})"
             )
-        for name in ("curriculum", "recycle"):
+        for name in ("curriculum", "recycle", "gap_ramp"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
         for name in ("promote", "demote", "review"):
@@ -278,13 +284,15 @@ def tile_heights(cfg: TerrainLevels, level: int, kind: str) -> np.ndarray:
         profile = np.zeros((rows, cols))
     else:  # stones
         stone = max(1, round(cfg.stone_size / cfg.cell))
-        gap = round(d * cfg.stone_gap / cfg.cell)
+        gap, depth = round(d * cfg.stone_gap / cfg.cell), cfg.gap_depth
+        if cfg.gap_ramp and d > 0:
+            gap, depth = max(gap, 1), d * cfg.gap_depth
         period = stone + gap
         past_pad = np.maximum(np.arange(cols) - int(on_pad.sum()), 0)  # 0: first stone
         in_gap = (past_pad[None, :] % period >= stone) | (
             np.arange(rows)[:, None] % period >= stone
         )
-        profile = np.where(in_gap, -cfg.gap_depth, 0.0)
+        profile = np.where(in_gap, -depth, 0.0)
     edge = np.minimum(
         np.minimum(s, cfg.tile_length - x)[None, :], np.minimum(y, cfg.tile_width - y)[:, None]
     )

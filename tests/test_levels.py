@@ -89,6 +89,22 @@ def test_stone_gaps_are_whole_cells():
     assert not tile_heights(tiny, 2, "stones").any()
 
 
+def test_gap_ramp_deepens_one_cell_gaps_level_by_level():
+    # With the ramp, stones have gaps from level 1: round(0.5 * 0.04 / 0.05) = 0 cells
+    # without it (flat stones), at least 1 with it, d * gap_depth deep: 0.5 * 0.05 at
+    # level 1 of 3; level 2 (d = 1) is the full depth and round(0.04 / 0.05) = 1 cell.
+    ramp = dataclasses.replace(SMALL, stone_gap=0.04, gap_ramp=True)
+    assert not tile_heights(dataclasses.replace(ramp, gap_ramp=False), 1, "stones").any()
+    for level, depth in ((1, 0.025), (2, 0.05)):
+        tile = tile_heights(ramp, level, "stones")
+        assert first_gap(tile[MID_ROW]) == (12, 1)
+        assert tile[MID_ROW, 12] == -depth
+        assert tile.min() == -depth
+    assert not tile_heights(ramp, 0, "stones").any()  # level 0 stays flat
+    with pytest.raises(ValueError, match="gap_ramp must be a bool, got 'yes'"):
+        TerrainLevels(gap_ramp="yes")
+
+
 def test_rough_is_smooth_noise_of_d_times_roughness():
     tile = tile_heights(SMALL, 2, "rough")
     assert 0.5 * 0.07 < np.ptp(tile) <= 0.07
