@@ -149,6 +149,29 @@ def test_the_report_runs_end_to_end_and_reads_its_json_back(checkpoints, tmp_pat
     assert capsys.readouterr().out.strip() == printed.strip()
 
 
+def test_one_policy_alone_gets_its_rows_and_no_gait_without_the_adaptive(
+    checkpoints, tmp_path, monkeypatch, capsys
+):
+    # a residual policy alone: (a)-(c) for the base gait and it, no gait by terrain, no plot
+    def never(*args, **kwargs):
+        raise AssertionError("the gait by terrain ran without an adaptive policy")
+
+    monkeypatch.setattr(adaptive_report, "gait_by_terrain", never)
+    residual, _ = checkpoints
+    adaptive_report.main(["--residual", str(residual), *QUICK, "--out", str(tmp_path)])
+    printed = capsys.readouterr().out
+    data = json.loads((tmp_path / "adaptive.json").read_text())
+    assert set(data) == {"a", "b", "c"} and not (tmp_path / "adaptive_levels.png").exists()
+    assert [row["name"].split(" | ")[0] for row in data["a"]] == ["base gait", "residual"]
+    assert len(data["c"]) == 2 * len(ae.SPEEDS) and "(d)" not in printed
+    adaptive_report.main(["--tables", str(tmp_path / "adaptive.json")])
+    assert capsys.readouterr().out.strip() == printed.strip()
+    with pytest.raises(SystemExit) as raised:
+        adaptive_report.main([*QUICK])
+    assert raised.value.code == 2
+    assert "give --residual, --adaptive or both" in capsys.readouterr().err
+
+
 def test_a_checkpoint_of_the_other_task_is_refused_naming_both(checkpoints, capsys):
     residual, adaptive = checkpoints
     with pytest.raises(SystemExit) as raised:

@@ -16,7 +16,8 @@ terrain-levels map at each level: the mean, 95% interval and spread of each gait
 parameter it commands and of its swing peaks (how high each swing lifted the foot
 above the ground under it), its falls, and whether its step height on rough and step tiles at
 levels >= 5 is at least 1.5x that on flat ground. Writes adaptive.json (every
-row) and adaptive_levels.png, and prints the tables.
+row) and adaptive_levels.png, and prints the tables. Either policy may be left
+out: without --adaptive there is no gait by terrain (and no plot).
 """
 
 from __future__ import annotations
@@ -123,12 +124,14 @@ def parse_args(argv: list[str] | None = None) -> AdaptiveReportArgs:
     args = parse(AdaptiveReportArgs, argv, prog=PROG, description=__doc__)
     if args.tables:
         return args
-    if args.residual is None or args.adaptive is None:
-        usage_error(PROG, "give --residual and --adaptive checkpoints (or --tables)")
-    for name in FILES:  # before any row runs
+    if args.residual is None and args.adaptive is None:
+        usage_error(PROG, "give --residual, --adaptive or both checkpoints (or --tables)")
+    for name in _outputs(args):  # before any row runs
         check_outputs(PROG, {"--out": args.out / name})
     for flag, path, task in (("--residual", args.residual, "residual_walk"),
                              ("--adaptive", args.adaptive, "adaptive_gait")):  # fmt: skip
+        if path is None:
+            continue
         try:  # every file, before any row runs
             check_policy(path, task)
         except (OSError, ValueError) as error:
@@ -148,16 +151,26 @@ def main(argv: list[str] | None = None) -> None:
         _print(tables, stats)
         return
     policies = {"base gait": None, "residual": args.residual, "adaptive": args.adaptive}
+    policies = {name: path for name, path in policies.items() if path or name == "base gait"}
     tables = compare(policies, args.episodes, args.seed, args.terrain_scale,
                      max_steps=args.max_steps, settle_steps=args.settle_steps)  # fmt: skip
-    stats = gait_by_terrain(args.adaptive, args.episodes, args.seed, args.gait_steps)
+    stats = []
+    if args.adaptive is not None:
+        stats = gait_by_terrain(args.adaptive, args.episodes, args.seed, args.gait_steps)
     _print(tables, stats)
     args.out.mkdir(parents=True, exist_ok=True)
     data = {k: [dataclasses.asdict(r) for r in rows] for k, rows in tables.items()}
-    data["gait"] = [dataclasses.asdict(s) for s in stats]
-    data["adaptation"] = adaptation(stats)
+    if stats:
+        data["gait"] = [dataclasses.asdict(s) for s in stats]
+        data["adaptation"] = adaptation(stats)
     atomic_write_text(args.out / FILES[0], json.dumps(data, indent=2))
-    plot_levels(stats, args.out / FILES[1])
+    if stats:
+        plot_levels(stats, args.out / FILES[1])
+
+
+def _outputs(args: AdaptiveReportArgs) -> tuple[str, ...]:
+    """The files the report writes into --out: the gait plot only with an adaptive policy."""
+    return FILES if args.adaptive is not None else FILES[:1]
 
 
 if __name__ == "__main__":  # through the module by name, where tyro reads the Args' types
