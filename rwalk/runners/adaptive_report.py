@@ -150,8 +150,8 @@ def main(argv: list[str] | None = None) -> None:
             usage_error(PROG, f"--tables: not an adaptive.json of this report ({error})")
         _print(tables, stats)
         return
-    policies = {"base gait": None, "residual": args.residual, "adaptive": args.adaptive}
-    policies = {name: path for name, path in policies.items() if path or name == "base gait"}
+    given = {"residual": args.residual, "adaptive": args.adaptive}
+    policies = {"base gait": None, **{name: path for name, path in given.items() if path}}
     tables = compare(policies, args.episodes, args.seed, args.terrain_scale,
                      max_steps=args.max_steps, settle_steps=args.settle_steps)  # fmt: skip
     stats = []
@@ -163,9 +163,8 @@ def main(argv: list[str] | None = None) -> None:
     if stats:
         data["gait"] = [dataclasses.asdict(s) for s in stats]
         data["adaptation"] = adaptation(stats)
-    atomic_write_text(args.out / FILES[0], json.dumps(data, indent=2))
-    if stats:
         plot_levels(stats, args.out / FILES[1])
+    atomic_write_text(args.out / FILES[0], json.dumps(data, indent=2))
 
 
 def _outputs(args: AdaptiveReportArgs) -> tuple[str, ...]:
