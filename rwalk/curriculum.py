@@ -60,6 +60,9 @@ class Curriculum:
         """The level of each reviewing env's episode. Shape: (N,)."""
         self.reviews = torch.zeros(num_envs, dtype=torch.long)
         """Review draws so far by each env. Shape: (N,)."""
+        self.flat = torch.zeros(num_envs, dtype=torch.bool)
+        """Whether each env walks its tile's level 0 (flat at every kind) from now on
+        (``flatten``): its level neither moves nor reviews. Shape: (N,)."""
         self._seed = 0
 
     def seed(self, seed: int) -> None:
@@ -67,6 +70,25 @@ class Curriculum:
         self._seed = seed
         self.draws.zero_()
         self.reviews.zero_()
+
+    def flatten(self, kinds: tuple[str, ...]) -> Tensor:
+        """From their next episode on, the envs on ``kinds`` of tile walk level 0 (flat
+        at every kind) and stay there (rwalk-train's --late-flat-kinds stage). Returns
+        those envs' mask. Shape: (N,) bool.
+
+        Raises:
+            ValueError: naming the kind, if the map has none of it (or there is no map).
+        """
+        known = self.levels.kinds if self.levels is not None else ()
+        for kind in kinds:
+            if kind not in known:
+                raise ValueError(f"no {kind!r} tiles to flatten: the map's kinds are "
+                                 f"{known or 'none (no terrain-levels map)'}")  # fmt: skip
+        rows = torch.isin(self.terrain_kind, torch.tensor([known.index(k) for k in kinds]))
+        self.flat |= rows
+        self.terrain_level[rows] = 0
+        self.reviewing[rows] = False
+        return rows
 
     def move(
         self,
@@ -92,7 +114,7 @@ class Curriculum:
         self._move(rows, walked, distance, fell, target, control_dt)
         if levels.review > 0:  # env i's k-th draw from the key (seed + i, REVIEW_STREAM, k)
             u = rng.uniform_rows(self._seed, rows, REVIEW_STREAM, self.reviews, 2)
-            self.reviewing[rows] = u[:, 0] < levels.review
+            self.reviewing[rows] = (u[:, 0] < levels.review) & ~self.flat[rows]
             self.review_level[rows] = torch.floor(u[:, 1] * (self.terrain_level[rows] + 1)).long()
 
     def _move(self, rows: Tensor, walked: Tensor, distance: Tensor, fell: Tensor,
@@ -100,7 +122,8 @@ class Curriculum:
         levels = self.levels
         if not levels.curriculum:
             return
-        rows = rows[(walked[rows] > 0) & ~self.reviewing[rows]]  # first resets end no episode
+        rows = rows[(walked[rows] > 0) & ~self.reviewing[rows] & ~self.flat[rows]]  # first
+        # resets end no episode; flattened envs stay at level 0
         if rows.numel() == 0:
             return
         target = target[rows] if isinstance(target, Tensor) else target
@@ -139,7 +162,7 @@ class Curriculum:
         """Per-env tensors to keep when the core is pickled."""
         return {"terrain_level": self.terrain_level, "draws": self.draws,
                 "reviewing": self.reviewing, "review_level": self.review_level,
-                "reviews": self.reviews}  # fmt: skip
+                "reviews": self.reviews, "flat": self.flat}  # fmt: skip
 
     def checkpoint(self) -> dict[str, Tensor]:
         """What a checkpoint keeps of the curriculum: the levels (empty without a map)."""

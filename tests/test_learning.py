@@ -133,6 +133,27 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
             "--nominal-physics-entropy-coef must be >= 0, got nan",
         ),
         (["--late-iterations", "5"], "--late-iterations 5 and the stage's values go together"),
+        (
+            ["--late-iterations", "5", "--late-flat-kinds", "ice"],
+            "--late-flat-kinds ice: kinds of tile from rough, slopes, steps, stones, flat",
+        ),
+        (
+            ["--late-iterations", "5", "--late-flat-kinds", "stones", "stones"],
+            "--late-flat-kinds stones stones: kinds of tile from rough",
+        ),
+        (
+            ["--late-iterations", "0", "--late-flat-kinds", "stones"],
+            "--late-iterations 0 and the stage's values go together",
+        ),
+        (
+            ["--late-iterations", "5", "--late-flat-kinds", "flat"],
+            "--late-flat-kinds flat: this training's map has the kinds rough slopes steps stones",
+        ),
+        (
+            ["--no-robust", "--late-iterations", "5", "--late-flat-kinds", "stones"],
+            "--late-flat-kinds stones: this training's map has the kinds none",
+        ),
+        (["--task", "adaptive_gait", "--late-flat-kinds", "stones"], "needs --late-iterations N"),
         (["--no-robust", "--late-sigma", "0.04"], "--late-sigma 0.04 needs --late-iterations N"),
         (["--late-iterations", "-1", "--late-sigma", "0.04"], "--late-iterations must be >= 0"),
         (["--late-iterations", "5", "--late-sigma", "nan"], "--late-sigma must be a finite"),
@@ -365,6 +386,20 @@ def test_the_late_stage_changes_the_rewards_values_and_resumes_into_it(tmp_path,
                 "--log-dir", str(run)])  # fmt: skip
     assert "iteration 4: the reward's late values" in capsys.readouterr().out
     assert len(calls) == 1
+
+
+def test_the_late_stage_puts_the_flat_kinds_on_level_0_for_good(tmp_path, capsys):
+    run = tmp_path / "run"
+    # iterations 1-2 are one learn() call: the stage begins after iteration 1's update
+    train.main([*SHORT, "--max-iterations", "3", "--save-interval", "3", "--late-iterations",
+                "1", "--late-flat-kinds", "stones", "--log-dir", str(run)])  # fmt: skip
+    out = capsys.readouterr().out
+    assert "iteration 2: the 2 envs on stones tiles walk level 0 from their next episode" in out
+    assert "the reward's late values" not in out  # no reward values given, none moved
+    levels = load_checkpoint(run / "model_2.pt")["env_state"]["terrain_level"]
+    assert levels[3::4].tolist() == [0, 0]  # the 8 envs' kinds: rough, slopes, steps, stones
+    record = json.loads((run / "config.json").read_text())
+    assert record["train"]["late_flat_kinds"] == ["stones"]
 
 
 def test_by_default_the_last_third_keeps_only_friction_randomised(tmp_path, draws, capsys):

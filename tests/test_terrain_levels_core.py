@@ -292,6 +292,28 @@ def test_review_episodes_start_at_or_below_the_env_s_level_and_do_not_move_it():
     assert not plain.curriculum.reviewing.any()
 
 
+def test_flattened_kinds_walk_level_0_and_stay_there():
+    levels = TerrainLevels(**{**vars(SMALL), "start_level": 2, "review": 0.5})
+    c = Core(config(terrain_levels=levels), 8, seed=5)
+    c.reset()
+    cur = c.curriculum
+    stones = cur.flatten(("stones",))  # kind 3 of rough, slopes, steps, stones
+    assert stones.tolist() == [False, False, False, True] * 2
+    assert c.terrain_level.tolist() == [2, 2, 2, 0] * 2 and not cur.reviewing[stones].any()
+    # a walk long enough to promote: the others move (or review), the stones envs stay at
+    # level 0 and never review
+    c.walked_steps[:] = 100
+    c.episode_distance[:] = c.config.expected_velocity * 100 * c.control_dt
+    c.reset()
+    assert c.terrain_level[stones].tolist() == [0, 0] and not cur.reviewing[stones].any()
+    assert (c.terrain_level[~stones] == 3).any()
+    origins = c.terrain_map.origins(np.zeros(2, dtype=np.int64), np.array([3, 3]))
+    xy = c.obs[stones, OBS_POS.start : OBS_POS.start + 2].numpy()
+    assert np.all(np.abs(xy[:, 1] - origins[:, 1]) < 0.15)  # on level 0's stones pad
+    with pytest.raises(ValueError, match=r"no 'flat' tiles to flatten: the map's kinds are"):
+        cur.flatten(("flat",))
+
+
 def test_checkpoints_carry_the_curriculum(tmp_path):
     import contextlib
     import dataclasses

@@ -24,6 +24,7 @@ from typing import Any, Generic, TypeVar
 from tyro.conf import OmitArgPrefixes
 
 from rwalk.config import MAX_ENVS, MAX_THREADS, EnvConfig
+from rwalk.levels import KNOWN_KINDS
 from rwalk.observations import PRIVILEGED_PIECES, piece_catalog
 from rwalk.presets import SETTLE_POOL_FRACTION, training_env
 from rwalk.randomization import PHYSICS_RANGES
@@ -219,6 +220,10 @@ class TrainConfig:
     late_clearance_target: float | None = None
     """--late-iterations: the gait costs' clearance target (--env.costs.clearance-target)
     in that stage, m; None: unchanged"""
+    late_flat_kinds: tuple[str, ...] = ()
+    """--late-iterations: the envs on these kinds of tile (of --terrain-kinds) walk their
+    tile's level 0, flat at every kind, in that stage and stay there (the curriculum goes
+    on for the others); none: every env keeps its level"""
     student_iterations: int = 0
     """with --teacher: when the teacher is trained, distil it into a blind student for this
     many iterations in LOG_DIR/student (both stages in one command; an interrupted student
@@ -246,10 +251,16 @@ class TrainConfig:
         late = [name for name in LATE_VALUES if getattr(self, name) is not None]
         require_positive(self, *(name for name in late if name != "late_tracking"))
         require_at_least(self, 0, *late)
+        if self.late_flat_kinds:
+            kinds = self.late_flat_kinds
+            if not set(kinds) <= set(KNOWN_KINDS) or len(set(kinds)) != len(kinds):
+                raise ValueError(f"{show_flag('late_flat_kinds', kinds)}: kinds of tile "
+                                 f"from {', '.join(KNOWN_KINDS)}, each once")  # fmt: skip
+            late.append("late_flat_kinds")
         if self.late_iterations is not None and bool(late) != bool(self.late_iterations):
             raise ValueError(
                 f"--late-iterations {self.late_iterations} and the stage's values go together "
-                f"({', '.join(map(flag, LATE_VALUES))}), got "
+                f"({', '.join(map(flag, (*LATE_VALUES, 'late_flat_kinds')))}), got "
                 f"{', '.join(show_flag(n, getattr(self, n)) for n in late) or 'none'}"
             )
         if self.student_iterations and not self.teacher:
@@ -454,6 +465,11 @@ class Training(TrainingBase[Env]):
             )
         if self.train.late_iterations is not None:  # else resolved() writes it out, then
             late_reward(self.train, self.env)  # checks: refused here, not at the stage's start
+        kinds = self.env.terrain_levels.kinds if self.env.terrain_levels is not None else ()
+        if not set(self.train.late_flat_kinds) <= set(kinds):
+            raise ValueError(f"{show_flag('late_flat_kinds', self.train.late_flat_kinds)}: "
+                             f"this training's map has the kinds {' '.join(kinds) or 'none'} "
+                             f"(--terrain-kinds)")  # fmt: skip
         task = get_task(self.task)
         known = piece_catalog(task.pieces(), task.observation)
         for name in ("policy_obs", "critic_obs"):
@@ -532,6 +548,8 @@ def _late_stage(task, training: Training) -> tuple[EnvConfig, dict[str, Any]]:
     if train.late_iterations is not None:
         return env, {}
     given = {name: value for name in LATE_VALUES if (value := getattr(train, name)) is not None}
+    if train.late_flat_kinds:
+        given["late_flat_kinds"] = train.late_flat_kinds
     own = task.late_stage if env.randomization is not None and not train.distill else None
     share, values = own or (0.0, {})
     late = round(share * training.run.max_iterations)
@@ -542,7 +560,7 @@ def _late_stage(task, training: Training) -> tuple[EnvConfig, dict[str, Any]]:
                              f"training has no late stage of its own")  # fmt: skip
         return env, {"late_iterations": 0}
     values = values | given
-    if env.shaping is None and any(LATE_VALUES[name][0] == "shaping" for name in values):
+    if env.shaping is None and any(LATE_VALUES.get(name, ("",))[0] == "shaping" for name in values):
         env = dataclasses.replace(env, shaping=Shaping())
     return env, {"late_iterations": late, **values}
 
@@ -579,7 +597,7 @@ def student_training(teacher: Training) -> Training:
     train = dataclasses.replace(
         teacher.train, teacher=False, distill=teacher.run.log_dir, warm_start="", policy_obs=blind,
         actor=teacher.train.student_actor, student_iterations=0, symmetry=False, critic_obs=(),
-        late_iterations=0, **dict.fromkeys(LATE_VALUES),
+        late_iterations=0, late_flat_kinds=(), **dict.fromkeys(LATE_VALUES),
     )  # fmt: skip
     run = dataclasses.replace(
         teacher.run, resume="", max_iterations=teacher.train.student_iterations,
