@@ -73,22 +73,38 @@ class Curriculum:
 
     def flatten(self, kinds: tuple[str, ...]) -> Tensor:
         """From their next episode on, the envs on ``kinds`` of tile walk level 0 (flat
-        at every kind) and stay there (rwalk-train's --late-flat-kinds stage). Returns
-        those envs' mask. Shape: (N,) bool.
+        at every kind) and stay there until ``release`` (rwalk-train's --flat-kinds
+        window). Returns those envs' mask. Shape: (N,) bool.
 
         Raises:
             ValueError: naming the kind, if the map has none of it (or there is no map).
         """
+        rows = self._on(kinds)
+        self.flat |= rows
+        self.terrain_level[rows] = 0
+        self.reviewing[rows] = False
+        return rows
+
+    def release(self, kinds: tuple[str, ...]) -> Tensor:
+        """From their next episode on, the envs on ``kinds`` of tile walk the curriculum
+        again, each from a level drawn uniformly from the map's (as an env passing the
+        top does: its next draw of the key (seed + i, "terrain_level", k)), so that they
+        do not climb the flat levels one episode at a time. Returns their mask. Shape:
+        (N,) bool."""
+        mask = self._on(kinds)
+        rows = torch.nonzero(mask).flatten()
+        u = rng.uniform_rows(self._seed, rows, LEVEL_STREAM, self.draws, 1)[:, 0]
+        self.terrain_level[rows] = torch.floor(u * self.levels.levels).to(torch.long)
+        self.flat &= ~mask
+        return mask
+
+    def _on(self, kinds: tuple[str, ...]) -> Tensor:
         known = self.levels.kinds if self.levels is not None else ()
         for kind in kinds:
             if kind not in known:
                 raise ValueError(f"no {kind!r} tiles to flatten: the map's kinds are "
                                  f"{known or 'none (no terrain-levels map)'}")  # fmt: skip
-        rows = torch.isin(self.terrain_kind, torch.tensor([known.index(k) for k in kinds]))
-        self.flat |= rows
-        self.terrain_level[rows] = 0
-        self.reviewing[rows] = False
-        return rows
+        return torch.isin(self.terrain_kind, torch.tensor([known.index(k) for k in kinds]))
 
     def move(
         self,

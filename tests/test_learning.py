@@ -134,26 +134,29 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
         ),
         (["--late-iterations", "5"], "--late-iterations 5 and the stage's values go together"),
         (
-            ["--late-iterations", "5", "--late-flat-kinds", "ice"],
-            "--late-flat-kinds ice: kinds of tile from rough, slopes, steps, stones, flat",
+            ["--flat-kinds", "ice"],
+            "--flat-kinds ice: kinds of tile from rough, slopes, steps, stones, flat, each once",
+        ),
+        (["--flat-kinds", "stones", "stones"], "--flat-kinds stones stones: kinds of tile"),
+        (["--flat-until", "5"], "--flat-until 5 needs --flat-kinds KIND ...: the kinds"),
+        (["--flat-from", "5"], "--flat-from 5 needs --flat-kinds KIND ..."),
+        (["--flat-kinds", "stones", "--flat-from", "-1"], "--flat-from must be >= 0, got -1"),
+        (
+            ["--flat-kinds", "stones", "--flat-from", "5", "--flat-until", "5"],
+            "--flat-until must be in [6, 1e+09], got 5",
         ),
         (
-            ["--late-iterations", "5", "--late-flat-kinds", "stones", "stones"],
-            "--late-flat-kinds stones stones: kinds of tile from rough",
+            ["--flat-kinds", "stones", "--flat-from", "300"],
+            "--flat-from 300: the run ends before, at --max-iterations 300",
         ),
         (
-            ["--late-iterations", "0", "--late-flat-kinds", "stones"],
-            "--late-iterations 0 and the stage's values go together",
+            ["--flat-kinds", "flat"],
+            "--flat-kinds flat: this training's map has the kinds rough slopes steps stones",
         ),
         (
-            ["--late-iterations", "5", "--late-flat-kinds", "flat"],
-            "--late-flat-kinds flat: this training's map has the kinds rough slopes steps stones",
+            ["--no-robust", "--flat-kinds", "stones"],
+            "--flat-kinds stones: this training's map has the kinds none",
         ),
-        (
-            ["--no-robust", "--late-iterations", "5", "--late-flat-kinds", "stones"],
-            "--late-flat-kinds stones: this training's map has the kinds none",
-        ),
-        (["--task", "adaptive_gait", "--late-flat-kinds", "stones"], "needs --late-iterations N"),
         (["--no-robust", "--late-sigma", "0.04"], "--late-sigma 0.04 needs --late-iterations N"),
         (["--late-iterations", "-1", "--late-sigma", "0.04"], "--late-iterations must be >= 0"),
         (["--late-iterations", "5", "--late-sigma", "nan"], "--late-sigma must be a finite"),
@@ -388,18 +391,25 @@ def test_the_late_stage_changes_the_rewards_values_and_resumes_into_it(tmp_path,
     assert len(calls) == 1
 
 
-def test_the_late_stage_puts_the_flat_kinds_on_level_0_for_good(tmp_path, capsys):
+def test_the_flat_kinds_walk_level_0_within_their_window(tmp_path, capsys):
     run = tmp_path / "run"
-    # iterations 1-2 are one learn() call: the stage begins after iteration 1's update
-    train.main([*SHORT, "--max-iterations", "3", "--save-interval", "3", "--late-iterations",
-                "1", "--late-flat-kinds", "stones", "--log-dir", str(run)])  # fmt: skip
+    # one learn() call (iterations 0-3): the window is iterations 1 and 2
+    train.main([*SHORT, "--max-iterations", "4", "--save-interval", "4", "--flat-kinds",
+                "stones", "--flat-from", "1", "--flat-until", "3",
+                "--log-dir", str(run)])  # fmt: skip
     out = capsys.readouterr().out
-    assert "iteration 2: the 2 envs on stones tiles walk level 0 from their next episode" in out
-    assert "the reward's late values" not in out  # no reward values given, none moved
-    levels = load_checkpoint(run / "model_2.pt")["env_state"]["terrain_level"]
-    assert levels[3::4].tolist() == [0, 0]  # the 8 envs' kinds: rough, slopes, steps, stones
-    record = json.loads((run / "config.json").read_text())
-    assert record["train"]["late_flat_kinds"] == ["stones"]
+    flat = "iteration 1: the 2 envs on stones tiles walk level 0\n"
+    back = "iteration 3: the 2 envs on stones tiles walk the curriculum again from drawn levels\n"
+    assert flat in out and back in out and out.index(flat) < out.index(back)
+    record = json.loads((run / "config.json").read_text())["train"]
+    assert (record["flat_kinds"], record["flat_from"], record["flat_until"]) == (["stones"], 1, 3)
+    # a window to the run's end: the stones envs (every fourth of 8) end at level 0
+    until_end = tmp_path / "until_end"
+    train.main([*SHORT, "--max-iterations", "3", "--save-interval", "3", "--flat-kinds",
+                "stones", "--log-dir", str(until_end)])  # fmt: skip
+    assert "iteration 0: the 2 envs on stones tiles walk level 0" in capsys.readouterr().out
+    levels = load_checkpoint(until_end / "model_2.pt")["env_state"]["terrain_level"]
+    assert levels[3::4].tolist() == [0, 0]
 
 
 def test_by_default_the_last_third_keeps_only_friction_randomised(tmp_path, draws, capsys):

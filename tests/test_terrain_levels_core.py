@@ -312,6 +312,18 @@ def test_flattened_kinds_walk_level_0_and_stay_there():
     assert np.all(np.abs(xy[:, 1] - origins[:, 1]) < 0.15)  # on level 0's stones pad
     with pytest.raises(ValueError, match=r"no 'flat' tiles to flatten: the map's kinds are"):
         cur.flatten(("flat",))
+    # released, each restarts on a level drawn from the map's 4, as a pass past the top
+    many = Core(config(terrain_levels=levels), 64, seed=5)
+    many.reset()
+    ours = many.curriculum.flatten(("stones",))
+    assert torch.equal(many.curriculum.release(("stones",)), ours)
+    assert not many.curriculum.flat.any()
+    assert set(many.terrain_level[ours].tolist()) == {0, 1, 2, 3}
+    again = Core(config(terrain_levels=levels), 64, seed=5)
+    again.reset()
+    again.curriculum.flatten(("stones",))
+    again.curriculum.release(("stones",))
+    assert torch.equal(again.terrain_level, many.terrain_level)  # the same keys, the same draws
 
 
 def test_checkpoints_carry_the_curriculum(tmp_path):

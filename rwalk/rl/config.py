@@ -220,10 +220,15 @@ class TrainConfig:
     late_clearance_target: float | None = None
     """--late-iterations: the gait costs' clearance target (--env.costs.clearance-target)
     in that stage, m; None: unchanged"""
-    late_flat_kinds: tuple[str, ...] = ()
-    """--late-iterations: the envs on these kinds of tile (of --terrain-kinds) walk their
-    tile's level 0, flat at every kind, in that stage and stay there (the curriculum goes
-    on for the others); none: every env keeps its level"""
+    flat_kinds: tuple[str, ...] = ()
+    """the envs on these kinds of tile (of --terrain-kinds) walk their tile's level 0, flat
+    at every kind, from iteration --flat-from until --flat-until, then walk the curriculum
+    again, each from a level drawn uniformly from the map's (it goes on for the others
+    throughout); none: no such window"""
+    flat_from: int = 0
+    """--flat-kinds: the window's first iteration"""
+    flat_until: int | None = None
+    """--flat-kinds: the iteration that ends the window (None: the run's end)"""
     student_iterations: int = 0
     """with --teacher: when the teacher is trained, distil it into a blind student for this
     many iterations in LOG_DIR/student (both stages in one command; an interrupted student
@@ -251,18 +256,24 @@ class TrainConfig:
         late = [name for name in LATE_VALUES if getattr(self, name) is not None]
         require_positive(self, *(name for name in late if name != "late_tracking"))
         require_at_least(self, 0, *late)
-        if self.late_flat_kinds:
-            kinds = self.late_flat_kinds
-            if not set(kinds) <= set(KNOWN_KINDS) or len(set(kinds)) != len(kinds):
-                raise ValueError(f"{show_flag('late_flat_kinds', kinds)}: kinds of tile "
-                                 f"from {', '.join(KNOWN_KINDS)}, each once")  # fmt: skip
-            late.append("late_flat_kinds")
         if self.late_iterations is not None and bool(late) != bool(self.late_iterations):
             raise ValueError(
                 f"--late-iterations {self.late_iterations} and the stage's values go together "
-                f"({', '.join(map(flag, (*LATE_VALUES, 'late_flat_kinds')))}), got "
+                f"({', '.join(map(flag, LATE_VALUES))}), got "
                 f"{', '.join(show_flag(n, getattr(self, n)) for n in late) or 'none'}"
             )
+        require_at_least(self, 0, "flat_from")
+        require_at_most(self, MAX_ITERATIONS, "flat_from")
+        if self.flat_until is not None:
+            require_in(self, "flat_until", self.flat_from + 1, MAX_ITERATIONS)
+        kinds = self.flat_kinds
+        if not set(kinds) <= set(KNOWN_KINDS) or len(set(kinds)) != len(kinds):
+            raise ValueError(f"{show_flag('flat_kinds', kinds)}: kinds of tile from "
+                             f"{', '.join(KNOWN_KINDS)}, each once")  # fmt: skip
+        if not kinds and (self.flat_from or self.flat_until is not None):
+            window = "flat_from" if self.flat_from else "flat_until"
+            raise ValueError(f"{show_flag(window, getattr(self, window))} needs --flat-kinds "
+                             f"KIND ...: the kinds of tile the window flattens")  # fmt: skip
         if self.student_iterations and not self.teacher:
             raise ValueError("--student-iterations needs --teacher: the student is distilled "
                              "from the teacher this run trains")  # fmt: skip
@@ -466,10 +477,13 @@ class Training(TrainingBase[Env]):
         if self.train.late_iterations is not None:  # else resolved() writes it out, then
             late_reward(self.train, self.env)  # checks: refused here, not at the stage's start
         kinds = self.env.terrain_levels.kinds if self.env.terrain_levels is not None else ()
-        if not set(self.train.late_flat_kinds) <= set(kinds):
-            raise ValueError(f"{show_flag('late_flat_kinds', self.train.late_flat_kinds)}: "
-                             f"this training's map has the kinds {' '.join(kinds) or 'none'} "
+        if not set(self.train.flat_kinds) <= set(kinds):
+            raise ValueError(f"{show_flag('flat_kinds', self.train.flat_kinds)}: this "
+                             f"training's map has the kinds {' '.join(kinds) or 'none'} "
                              f"(--terrain-kinds)")  # fmt: skip
+        if self.train.flat_kinds and self.train.flat_from >= self.run.max_iterations:
+            raise ValueError(f"--flat-from {self.train.flat_from}: the run ends before, at "
+                             f"--max-iterations {self.run.max_iterations}")  # fmt: skip
         task = get_task(self.task)
         known = piece_catalog(task.pieces(), task.observation)
         for name in ("policy_obs", "critic_obs"):
@@ -548,8 +562,6 @@ def _late_stage(task, training: Training) -> tuple[EnvConfig, dict[str, Any]]:
     if train.late_iterations is not None:
         return env, {}
     given = {name: value for name in LATE_VALUES if (value := getattr(train, name)) is not None}
-    if train.late_flat_kinds:
-        given["late_flat_kinds"] = train.late_flat_kinds
     own = task.late_stage if env.randomization is not None and not train.distill else None
     share, values = own or (0.0, {})
     late = round(share * training.run.max_iterations)
@@ -560,7 +572,7 @@ def _late_stage(task, training: Training) -> tuple[EnvConfig, dict[str, Any]]:
                              f"training has no late stage of its own")  # fmt: skip
         return env, {"late_iterations": 0}
     values = values | given
-    if env.shaping is None and any(LATE_VALUES.get(name, ("",))[0] == "shaping" for name in values):
+    if env.shaping is None and any(LATE_VALUES[name][0] == "shaping" for name in values):
         env = dataclasses.replace(env, shaping=Shaping())
     return env, {"late_iterations": late, **values}
 
@@ -597,7 +609,8 @@ def student_training(teacher: Training) -> Training:
     train = dataclasses.replace(
         teacher.train, teacher=False, distill=teacher.run.log_dir, warm_start="", policy_obs=blind,
         actor=teacher.train.student_actor, student_iterations=0, symmetry=False, critic_obs=(),
-        late_iterations=0, late_flat_kinds=(), **dict.fromkeys(LATE_VALUES),
+        late_iterations=0, flat_kinds=(), flat_from=0, flat_until=None,
+        **dict.fromkeys(LATE_VALUES),
     )  # fmt: skip
     run = dataclasses.replace(
         teacher.run, resume="", max_iterations=teacher.train.student_iterations,

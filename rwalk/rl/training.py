@@ -479,8 +479,26 @@ def _stages(args: Training, runner, say) -> list[tuple[int, Callable[[int], None
             train.nominal_physics_entropy_coef, say=say)))  # fmt: skip
     if train.late_iterations:
         stages.append((end - train.late_iterations,
-                       functools.partial(_late_stage, runner, train, say=say)))  # fmt: skip
+                       functools.partial(_late_reward, runner, train, say=say)))  # fmt: skip
+    until = end if train.flat_until is None else min(train.flat_until, end)
+    if train.flat_kinds and until > runner.current_learning_iteration:  # a resume past the
+        # window leaves the levels its checkpoint has
+        stages.append((train.flat_from, functools.partial(
+            _flat_kinds, runner, train.flat_kinds, True, say=say)))  # fmt: skip
+        if until < end:
+            stages.append((until, functools.partial(
+                _flat_kinds, runner, train.flat_kinds, False, say=say)))  # fmt: skip
     return stages
+
+
+def _flat_kinds(runner, kinds: tuple[str, ...], flat: bool, iteration: int, *, say) -> None:
+    """From their next episode on, the envs on ``kinds`` walk level 0 and stay there
+    (``flat``), or walk the curriculum again, each from a drawn level."""
+    curriculum = runner.env.core.curriculum
+    envs = int((curriculum.flatten if flat else curriculum.release)(kinds).sum())
+    what = "walk level 0" if flat else "walk the curriculum again from drawn levels"
+    say(f"[rwalk] iteration {iteration}: the {envs} envs on {', '.join(kinds)} tiles {what}",
+        flush=True)  # fmt: skip
 
 
 def _nominal_physics(runner, keep: tuple[str, ...], entropy: float | None, iteration: int,
@@ -498,20 +516,14 @@ def _nominal_physics(runner, keep: tuple[str, ...], entropy: float | None, itera
         say(f"[rwalk] iteration {iteration}: entropy bonus {entropy:g}", flush=True)
 
 
-def _late_stage(runner, train: TrainConfig, iteration: int, *, say) -> None:
+def _late_reward(runner, train: TrainConfig, iteration: int, *, say) -> None:
     """From now on the reward has the late stage's values (--late-tracking, --late-sigma,
-    --late-clearance-target), and the envs on --late-flat-kinds walk their level 0."""
-    core = runner.env.core
+    --late-clearance-target)."""
+    runner.env.core.set_reward(**late_reward(train, runner.env.core.config))
     values = ", ".join(f"{flag(f'env.{part}.{field}')} {getattr(train, name):g}"
                        for name, (part, field) in LATE_VALUES.items()
                        if getattr(train, name) is not None)  # fmt: skip
-    if values:
-        core.set_reward(**late_reward(train, core.config))
-        say(f"[rwalk] iteration {iteration}: the reward's late values {values}", flush=True)
-    if train.late_flat_kinds:
-        envs = int(core.curriculum.flatten(train.late_flat_kinds).sum())
-        say(f"[rwalk] iteration {iteration}: the {envs} envs on {', '.join(train.late_flat_kinds)} "
-            f"tiles walk level 0 from their next episode", flush=True)  # fmt: skip
+    say(f"[rwalk] iteration {iteration}: the reward's late values {values}", flush=True)
 
 
 def _after_updates(alg, due: dict[int, list[Callable[[], None]]]) -> None:
