@@ -403,6 +403,10 @@ def test_the_flat_kinds_walk_level_0_within_their_window(tmp_path, capsys):
     assert flat in out and back in out and out.index(flat) < out.index(back)
     record = json.loads((run / "config.json").read_text())["train"]
     assert (record["flat_kinds"], record["flat_from"], record["flat_until"]) == (["stones"], 1, 3)
+    # resumed past the window, the levels are the checkpoint's: no window begins again
+    train.main([*SHORT, "--max-iterations", "6", "--flat-kinds", "stones", "--flat-from", "1",
+                "--flat-until", "3", "--resume", str(run), "--log-dir", str(run)])  # fmt: skip
+    assert "envs on stones tiles" not in capsys.readouterr().out
     # a window to the run's end: the stones envs (every fourth of 8) end at level 0
     until_end = tmp_path / "until_end"
     train.main([*SHORT, "--max-iterations", "3", "--save-interval", "3", "--flat-kinds",

@@ -480,14 +480,13 @@ def _stages(args: Training, runner, say) -> list[tuple[int, Callable[[int], None
     if train.late_iterations:
         stages.append((end - train.late_iterations,
                        functools.partial(_late_reward, runner, train, say=say)))  # fmt: skip
-    until = end if train.flat_until is None else min(train.flat_until, end)
-    if train.flat_kinds and until > runner.current_learning_iteration:  # a resume past the
-        # window leaves the levels its checkpoint has
-        stages.append((train.flat_from, functools.partial(
+    until, first = min(train.flat_until or end, end), runner.current_learning_iteration
+    if train.flat_kinds and until > first:  # a resume past the window's end leaves the
+        stages.append((train.flat_from, functools.partial(  # levels its checkpoint has
             _flat_kinds, runner, train.flat_kinds, True, say=say)))  # fmt: skip
-        if until < end:
-            stages.append((until, functools.partial(
-                _flat_kinds, runner, train.flat_kinds, False, say=say)))  # fmt: skip
+    if train.flat_kinds and first <= until < end:
+        stages.append((until, functools.partial(
+            _flat_kinds, runner, train.flat_kinds, False, say=say)))  # fmt: skip
     return stages
 
 
