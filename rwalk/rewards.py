@@ -132,6 +132,9 @@ class Shaping:
     sigma off)."""
     sigma: float = 0.02
     """The kernel's half-width. m/s."""
+    sigma_per_speed: float = 0.0
+    """The half-width grows with the target speed: max(sigma, sigma_per_speed x v*), a share
+    of v* where that is wider (0: sigma at every target)."""
     alive: float = 0.0
     """Reward per step."""
     action_rate: float = 0.0
@@ -143,16 +146,31 @@ class Shaping:
         _require_finite_numbers(self)
         if not self.sigma > 0:
             raise ValueError(f"Shaping.sigma must be > 0 m/s, got {self.sigma!r}")
+        if self.sigma_per_speed < 0:
+            raise ValueError(f"Shaping.sigma_per_speed is a share of v* and must be >= 0, "
+                             f"got {self.sigma_per_speed!r}")  # fmt: skip
         if self.action_rate < 0:
             raise ValueError(f"Shaping.action_rate is the size of a cost and must be >= 0, "
                              f"got {self.action_rate!r}")  # fmt: skip
 
 
-def tracking_kernel(forward_velocity: Tensor, target: Tensor | float, sigma: float) -> Tensor:
+def tracking_kernel(
+    forward_velocity: Tensor, target: Tensor | float, sigma: Tensor | float
+) -> Tensor:
     """1 / (1 + ((v_x - v*) / sigma)^2): a rational kernel (correctly rounded operations
     only: the same bits in any batch). Shape: (N,) -> (N,)."""
     error = (forward_velocity - target) / sigma
     return 1.0 / (1.0 + error * error)
+
+
+def kernel_width(shaping: Shaping, target: Tensor | float) -> Tensor | float:
+    """The kernel's half-width at each target: max(sigma, sigma_per_speed x v*) (one
+    product and a maximum: the same bits in any batch). Shape: (N,) -> (N,). m/s."""
+    if not shaping.sigma_per_speed:
+        return shaping.sigma
+    if isinstance(target, Tensor):
+        return torch.clamp(target * shaping.sigma_per_speed, min=shaping.sigma)
+    return max(shaping.sigma, target * shaping.sigma_per_speed)
 
 
 def action_rate(action: Tensor, last_action: Tensor) -> Tensor:
@@ -170,7 +188,8 @@ def shaping_terms(shaping: Shaping) -> tuple[RewardTerm, ...]:
     ``action_rate`` (minus its size times ``action_rate`` of the task's last two actions)."""
     terms = (
         RewardTerm("tracking_kernel", shaping.tracking,
-                   lambda s: tracking_kernel(s.forward_velocity, s.v_target, shaping.sigma)),
+                   lambda s: tracking_kernel(s.forward_velocity, s.v_target,
+                                             kernel_width(shaping, s.v_target))),
         RewardTerm("alive", shaping.alive, lambda s: s.forward_velocity * 0.0 + 1.0),
     )  # fmt: skip
     if not shaping.action_rate:

@@ -162,6 +162,10 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
         (["--late-iterations", "5", "--late-sigma", "nan"], "--late-sigma must be a finite"),
         (["--late-iterations", "5", "--late-tracking", "-1"], "--late-tracking must be >= 0"),
         (
+            ["--late-iterations", "5", "--late-sigma-per-speed", "-0.1"],
+            "--late-sigma-per-speed must be >= 0, got -0.1",
+        ),
+        (
             ["--late-iterations", "5", "--late-clearance-target", "-0.01"],
             "--late-clearance-target must be a finite number > 0, got -0.01",
         ),

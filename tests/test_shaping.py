@@ -8,7 +8,15 @@ import torch
 
 from rwalk import Core, EnvConfig, ResidualWalkEnv
 from rwalk.envs.single_step import SingleStep
-from rwalk.rewards import TERM_NAMES, GaitCosts, Shaping, action_rate, tracking_kernel
+from rwalk.rewards import (
+    TERM_NAMES,
+    GaitCosts,
+    Shaping,
+    action_rate,
+    kernel_width,
+    tracking_kernel,
+)
+from rwalk.rl.config import late_reward
 from rwalk.runners import train
 
 FLAT = EnvConfig(model_path="model/world_flat.xml", settle_steps=5)
@@ -20,6 +28,30 @@ def test_the_tracking_kernel_by_hand():
     # errors of 0, 1, -1 and 2 half-widths: 1, 1/2, 1/2, 1/5
     torch.testing.assert_close(got, torch.tensor([1.0, 0.5, 0.5, 0.2], dtype=torch.float64))
     assert tracking_kernel(0.13, 0.13, 0.02) == 1.0  # the one-env float pipeline's floats
+
+
+def test_the_kernel_widens_with_the_target_by_hand():
+    shaping = Shaping(tracking=1.0, sigma=0.02, sigma_per_speed=0.16)
+    target = torch.tensor([0.05, 0.125, 0.25], dtype=torch.float64)
+    # max(0.02, 0.16 v*): 0.008 and 0.02 are not wider than sigma, 0.04 is
+    assert kernel_width(shaping, target).tolist() == [0.02, 0.02, 0.04]
+    assert kernel_width(shaping, 0.25) == 0.04 and kernel_width(Shaping(), target) == 0.02
+    # 40 mm/s over each target: two half-widths at the slow ones (1/5), one at 0.25 (1/2)
+    got = tracking_kernel(target + 0.04, target, kernel_width(shaping, target))
+    torch.testing.assert_close(got, torch.tensor([0.2, 0.2, 0.5], dtype=torch.float64))
+
+
+def test_each_env_s_kernel_has_its_own_command_s_width():
+    config = dataclasses.replace(FLAT, command_range=(0.05, 0.25),
+                                 shaping=Shaping(tracking=10.0, sigma_per_speed=0.16))  # fmt: skip
+    core = Core(config, 4, seed=3)
+    core.reset()
+    terms = core.step(torch.zeros(4, 12)).terms
+    target, v = core.task.v_target, core.obs[:, 7]
+    width = torch.clamp(0.16 * target, min=0.02)
+    assert bool((width > 0.02).any()) and bool((width == 0.02).any())  # both sides drawn
+    expected = 10.0 * (1.0 / (1.0 + ((v - target) / width) ** 2))
+    torch.testing.assert_close(terms["tracking_kernel"], expected)
 
 
 def test_shaping_terms_are_added_and_reported_and_the_spec_env_has_none():
@@ -112,7 +144,14 @@ def test_the_action_rate_costs_each_change_from_the_episodes_zero_start():
 
 @pytest.mark.parametrize(
     "bad",
-    [dict(sigma=0.0), dict(tracking=float("nan")), dict(alive=1e9), dict(action_rate=-1.0)],
+    [
+        dict(sigma=0.0),
+        dict(tracking=float("nan")),
+        dict(alive=1e9),
+        dict(action_rate=-1.0),
+        dict(sigma_per_speed=-0.1),
+        dict(sigma_per_speed=float("inf")),
+    ],
 )
 def test_bad_shaping_is_named(bad):
     with pytest.raises(ValueError, match=r"Shaping\."):
@@ -151,3 +190,12 @@ def test_rwalk_train_sets_shaping_and_the_interval_from_its_command_line():
     assert training.env.shaping == Shaping(tracking=300.0, sigma=0.03, action_rate=20.0)
     assert training.env.command_interval == 4.0 and training.env.command_range == (0.07, 0.2)
     assert "command" in training.train.policy_obs  # the policy reads what it is asked
+
+
+def test_the_kernel_s_growth_with_speed_is_a_flag_and_a_late_value():
+    training = train.parse_args(["--env.shaping.tracking", "300",
+                                 "--env.shaping.sigma-per-speed", "0.1", "--late-iterations",
+                                 "5", "--late-sigma-per-speed", "0.16"])  # fmt: skip
+    assert training.env.shaping == Shaping(tracking=300.0, sigma_per_speed=0.1)
+    late = late_reward(training.train, training.env)["shaping"]
+    assert late == Shaping(tracking=300.0, sigma_per_speed=0.16)

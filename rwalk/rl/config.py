@@ -54,6 +54,7 @@ MAX_WIDTH = 4096
 LATE_VALUES = {
     "late_tracking": ("shaping", "tracking"),
     "late_sigma": ("shaping", "sigma"),
+    "late_sigma_per_speed": ("shaping", "sigma_per_speed"),
     "late_clearance_target": ("costs", "clearance_target"),
 }
 #: rwalk-train's --logger choices (rsl-rl's writers).
@@ -204,19 +205,23 @@ class TrainConfig:
     bought precision and cost new-map falls on one seed of two (docs/learning.md)"""
     late_iterations: int | None = None
     """the last N of --max-iterations train with the reward's values that --late-tracking,
-    --late-sigma and --late-clearance-target give (the costs moved on a policy that has
-    climbed the curriculum; docs/adaptive.md), the optimizer, curriculum and episodes
-    going on (a stage longer than the run: all of it, as a resume that shortens a run
+    --late-sigma, --late-sigma-per-speed and --late-clearance-target give (the costs moved on a
+    policy that has climbed the curriculum; docs/adaptive.md), the optimizer, curriculum and
+    episodes going on (a stage longer than the run: all of it, as a resume that shortens a run
     leaves it); 0: no such stage; None: the task's stage where the physics is randomised
-    (Task.late_stage: residual_walk the last sixth, 50 of the default 300, with the speed
-    kernel at --late-tracking 200, its terms at weight 0 before; the late flags given
-    replace its values; adaptive_gait none), else 0"""
+    (Task.late_stage: residual_walk the last sixth, 50 of the default 300, with the speed kernel
+    at --late-tracking 200, its terms at weight 0 before; the late flags given replace its
+    values; adaptive_gait none), else 0"""
     late_tracking: float | None = None
     """--late-iterations: the training kernel's weight (--env.shaping.tracking) in that
     stage; None: unchanged"""
     late_sigma: float | None = None
     """--late-iterations: the training kernel's half-width (--env.shaping.sigma) in that
     stage, m/s; None: unchanged"""
+    late_sigma_per_speed: float | None = None
+    """--late-iterations: the kernel's growth with the target speed
+    (--env.shaping.sigma-per-speed: half-width max(sigma, this x v*)) in that stage; None:
+    unchanged"""
     late_clearance_target: float | None = None
     """--late-iterations: the gait costs' clearance target (--env.costs.clearance-target)
     in that stage, m; None: unchanged"""
@@ -254,7 +259,7 @@ class TrainConfig:
             require_at_least(self, 0, "late_iterations")
             require_at_most(self, MAX_ITERATIONS, "late_iterations")
         late = [name for name in LATE_VALUES if getattr(self, name) is not None]
-        require_positive(self, *(name for name in late if name != "late_tracking"))
+        require_positive(self, *(n for n in late if n in ("late_sigma", "late_clearance_target")))
         require_at_least(self, 0, *late)
         if self.late_iterations is not None and bool(late) != bool(self.late_iterations):
             raise ValueError(
