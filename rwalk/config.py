@@ -7,6 +7,7 @@ from dataclasses import dataclass, field, fields
 
 from rwalk.constants import EPISODE_STEPS, SETTLE_STEPS
 from rwalk.gait import GaitParameters
+from rwalk.kinematics import LegGeometry
 from rwalk.levels import TerrainLevels
 from rwalk.observations import ObservationNoise
 from rwalk.perturbations import Pushes
@@ -192,6 +193,8 @@ class EnvConfig:
             abs(v) <= MAX_SPEED for v in self.command_range
         ):
             raise bad("command_range", f"must be speeds within ±{MAX_SPEED:g} m/s")
+        if self.costs is not None:  # the default legs; a Core checks its model's again
+            self.costs.check_reach(LegGeometry(), self.top_speed)
 
     def substeps(self, timestep: float) -> int:
         """Physics substeps per env step at a physics ``timestep`` (seconds).
@@ -228,6 +231,14 @@ class EnvConfig:
     def expected_velocity(self) -> float:
         """step_length / cycle_time. m/s."""
         return self.gait.expected_velocity
+
+    @property
+    def top_speed(self) -> float:
+        """The fastest target velocity the reward can ask (either sign): the command
+        range's farther end, else the gait's. m/s."""
+        if self.command_range is not None:
+            return max(abs(v) for v in self.command_range)
+        return abs(self.expected_velocity)
 
     @property
     def varies(self) -> bool:

@@ -335,7 +335,7 @@ class Core:
                 raise ValueError(f"set_reward: this env's config has no {name} to change")
         config = dataclasses.replace(self.config, **changes)
         if config.costs is not None:
-            config.costs.check_reach(self.world.geometry)
+            config.costs.check_reach(self.world.geometry, config.top_speed)
         old, self.task.config = self.task.config, config
         try:
             terms = self.task.reward_terms()

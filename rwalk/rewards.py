@@ -89,6 +89,9 @@ class GaitCosts:
     the ground under it or 3 cm ahead of it, summed over feet."""
     clearance_target: float = 0.015
     """Clearance asked of the bottom of a mid-swing foot above that ground. Metres."""
+    clearance_target_per_speed: float = 0.0
+    """The clearance asked grows with the target speed: max(clearance_target, this x v*),
+    seconds (metres per m/s; 0: clearance_target at every target)."""
     slip: float = 20.0
     """Per m/s of horizontal world speed of each foot touching the ground, summed over feet."""
     power: float = 1.0
@@ -100,7 +103,7 @@ class GaitCosts:
 
     def __post_init__(self) -> None:
         _require_finite_numbers(self)
-        for name in ("clearance", "slip", "power", "stumble"):
+        for name in ("clearance", "slip", "power", "stumble", "clearance_target_per_speed"):
             if getattr(self, name) < 0:
                 raise ValueError(
                     f"GaitCosts.{name} is the size of a cost and must be >= 0, "
@@ -108,14 +111,21 @@ class GaitCosts:
                 )
         self.check_reach(LegGeometry())
 
-    def check_reach(self, geometry: LegGeometry) -> None:
+    def check_reach(self, geometry: LegGeometry, top_speed: float = 0.0) -> None:
         """Raise ValueError naming ``clearance_target`` unless it is > 0 and within the
-        leg's reach (thigh + shin)."""
+        leg's reach (thigh + shin), or naming ``clearance_target_per_speed`` where the
+        target it asks at ``top_speed`` (m/s, the fastest v*) is beyond that reach."""
         reach = geometry.thigh_length + geometry.shin_length
         if not 0.0 < self.clearance_target <= reach:
             raise ValueError(
                 f"GaitCosts.clearance_target must be > 0 and within the leg's reach "
                 f"({reach:g} m), got {self.clearance_target!r}"
+            )
+        if self.clearance_target_per_speed * top_speed > reach:
+            raise ValueError(
+                f"GaitCosts.clearance_target_per_speed {self.clearance_target_per_speed!r} s "
+                f"asks {self.clearance_target_per_speed * top_speed:g} m at {top_speed:g} m/s, "
+                f"beyond the leg's reach ({reach:g} m)"
             )
 
 
@@ -163,14 +173,19 @@ def tracking_kernel(
     return 1.0 / (1.0 + error * error)
 
 
-def kernel_width(shaping: Shaping, target: Tensor | float) -> Tensor | float:
-    """The kernel's half-width at each target: max(sigma, sigma_per_speed x v*) (one
-    product and a maximum: the same bits in any batch). Shape: (N,) -> (N,). m/s."""
-    if not shaping.sigma_per_speed:
-        return shaping.sigma
+def grown_with_speed(floor: float, per_speed: float, target: Tensor | float) -> Tensor | float:
+    """max(floor, per_speed x v*) at each target (one product and a maximum: the same bits
+    in any batch); ``floor`` itself where ``per_speed`` is 0. Shape: (N,) -> (N,)."""
+    if not per_speed:
+        return floor
     if isinstance(target, Tensor):
-        return torch.clamp(target * shaping.sigma_per_speed, min=shaping.sigma)
-    return max(shaping.sigma, target * shaping.sigma_per_speed)
+        return torch.clamp(target * per_speed, min=floor)
+    return max(floor, target * per_speed)
+
+
+def kernel_width(shaping: Shaping, target: Tensor | float) -> Tensor | float:
+    """The kernel's half-width at each target: max(sigma, sigma_per_speed x v*). m/s."""
+    return grown_with_speed(shaping.sigma, shaping.sigma_per_speed, target)
 
 
 def action_rate(action: Tensor, last_action: Tensor) -> Tensor:
@@ -271,7 +286,9 @@ def _mid_swing(swing_progress: Tensor) -> Tensor:
     return (swing_progress >= low) & (swing_progress <= high)
 
 
-def clearance_shortfall(clearance: Tensor, swing_progress: Tensor, target: float) -> Tensor:
+def clearance_shortfall(
+    clearance: Tensor, swing_progress: Tensor, target: Tensor | float
+) -> Tensor:
     """Sum over feet in mid swing (progress within MID_SWING) of max(0, target - clearance).
 
     Args:
@@ -279,8 +296,10 @@ def clearance_shortfall(clearance: Tensor, swing_progress: Tensor, target: float
             (N, 4). Metres.
         swing_progress: each leg's progress through its swing, 0 at lift-off, 1 at
             touch-down; outside [0, 1] in stance. Shape: (N, 4).
-        target: the clearance asked. Metres.
+        target: the clearance asked, one for all or one per env. Shape: () or (N,). Metres.
     """
+    if isinstance(target, Tensor) and target.dim():
+        target = target.unsqueeze(-1)
     return _legs(torch.clamp(target - clearance, min=0.0) * _mid_swing(swing_progress))
 
 
@@ -375,7 +394,9 @@ def cost_terms(costs: GaitCosts, world) -> tuple[RewardTerm, ...]:
     def clearance(s: StepState) -> Tensor:
         heights = foot_clearances(s.sources.sensors, s.sources.terrain).view(-1, 4, samples)
         passing = torch.minimum(heights[..., 0], heights[..., 1]) - radius  # under, ahead
-        return clearance_shortfall(passing, swing_progress(s), costs.clearance_target)
+        target = grown_with_speed(costs.clearance_target, costs.clearance_target_per_speed,
+                                  s.v_target)  # fmt: skip
+        return clearance_shortfall(passing, swing_progress(s), target)
 
     def slip(s: StepState) -> Tensor:
         contact = s.sources.sensors[:, OBS_CONTACT] > 0.5

@@ -16,6 +16,7 @@ from rwalk.rewards import (
     MID_SWING,
     clearance_shortfall,
     foot_slip,
+    grown_with_speed,
     mid_swing_contacts,
     servo_power,
 )
@@ -36,6 +37,21 @@ def test_clearance_shortfall_counts_mid_swing_feet_below_the_target():
     expected = torch.tensor([(0.015 - 0.005) + 0.0 + 0.0 + (0.015 + 0.01), 0.015], dtype=F64)
     assert torch.equal(value, expected)
     assert MID_SWING == (0.25, 0.75)
+
+
+def test_each_env_s_clearance_target_grows_with_its_target_speed_by_hand():
+    # max(0.015, 0.1 s x v*): 0.005 and 0.015 are not above the floor, 0.025 is
+    target = torch.tensor([0.05, 0.15, 0.25], dtype=F64)
+    assert grown_with_speed(0.015, 0.1, target).tolist() == [0.015, 0.015, 0.025]
+    assert grown_with_speed(0.015, 0.1, 0.25) == 0.025
+    assert grown_with_speed(0.015, 0.0, 9.0) == 0.015  # 0: the floor at any speed
+    clearance = torch.tensor([[0.01, 0.02, 0.0, 0.0], [0.01, 0.02, 0.0, 0.0]], dtype=F64)
+    progress = torch.tensor([[0.5, 0.5, 0.1, 0.9], [0.5, 0.5, 0.1, 0.9]], dtype=F64)
+    value = clearance_shortfall(clearance, progress, torch.tensor([0.015, 0.025], dtype=F64))
+    # row 0: 0.015 - 0.01 and nothing; row 1: 0.025 - 0.01 and 0.025 - 0.02 (the others
+    # are not in mid swing)
+    expected = torch.tensor([0.015 - 0.01, (0.025 - 0.01) + (0.025 - 0.02)], dtype=F64)
+    assert torch.equal(value, expected)
 
 
 def test_mid_swing_contacts_count_feet_touching_in_the_middle_of_their_swing():
@@ -127,6 +143,27 @@ def test_a_standing_robot_s_swing_feet_fall_short_by_the_target():
     assert seen > 0
 
 
+def test_a_standing_robot_falls_short_by_its_own_command_s_target():
+    """As above, with commands and a target that grows with them: each env's mid-swing
+    feet fall short by about max(0.01, 0.1 s x its v*)."""
+    gait = dataclasses.replace(GaitParameters(), step_height=1e-6)
+    costs = dataclasses.replace(COSTS, clearance_target_per_speed=0.1)
+    core = _core(gait=gait, costs=costs, command_range=(0.05, 0.25))
+    core.reset()
+    target = torch.clamp(0.1 * core.task.v_target, min=0.01)
+    assert bool((target > 0.01).any()) and bool((target == 0.01).any())  # both sides drawn
+    duty = gait.duty_factor
+    seen = 0
+    for _ in range(40):
+        result = core.step(torch.zeros(3, 12))
+        progress = (core.controller.leg_phases(core.task.sensed_phase) - duty) / (1 - duty)
+        mid = ((progress >= MID_SWING[0]) & (progress <= MID_SWING[1])).sum(dim=1)
+        shortfall = -result.terms["clearance"] / COSTS.clearance
+        torch.testing.assert_close(shortfall, mid * target, rtol=0.0, atol=0.002 * 4)
+        seen += int(mid.sum())
+    assert seen > 0
+
+
 def test_stumble_is_a_term_only_when_asked_and_counts_the_shuffling_feet():
     """Off (0), the costs declare no stumble term, so earlier runs keep their reward; on,
     a robot whose swing feet rise 1 micrometre touches the ground with every mid-swing
@@ -214,6 +251,8 @@ def test_the_target_action_moves_each_parameter_toward_its_target_at_the_delta_r
         ({"clearance_target": 0.0}, "clearance_target"),
         ({"clearance_target": 0.2}, "clearance_target"),
         ({"clearance_target": math.nan}, "clearance_target"),
+        ({"clearance_target_per_speed": -0.1}, "clearance_target_per_speed"),
+        ({"clearance_target_per_speed": math.inf}, "clearance_target_per_speed"),
     ],
 )
 def test_bad_costs_are_refused_naming_the_field(changes, field):
@@ -229,6 +268,15 @@ def test_a_clearance_target_beyond_the_model_s_legs_is_refused():
         GaitCosts(clearance_target=0.05).check_reach(short)
 
 
+def test_a_target_that_grows_beyond_the_legs_at_the_fastest_command_is_refused():
+    costs = GaitCosts(clearance_target_per_speed=0.5)  # legs reach 0.11 m
+    with pytest.raises(ValueError, match=r"clearance_target_per_speed 0\.5 s asks 0\.125 m"):
+        _core(costs=costs, command_range=(0.05, 0.25))  # 0.125 m at 0.25 m/s
+    assert _core(costs=costs).config.top_speed == pytest.approx(0.08 / 0.6)  # 0.067 m: fits
+    with pytest.raises(ValueError, match=r"clearance_target_per_speed"):
+        _core(costs=COSTS, command_range=(0.05, 0.25)).set_reward(costs=costs)
+
+
 def test_costs_of_another_kind_and_unknown_gait_actions_are_refused():
     with pytest.raises(TypeError, match=r"EnvConfig\.costs must be a GaitCosts"):
         EnvConfig(costs={"clearance": 1.0})
@@ -236,3 +284,16 @@ def test_costs_of_another_kind_and_unknown_gait_actions_are_refused():
         AdaptiveGaitConfig(gait_action="absolute")
     with pytest.raises(ValueError, match=r"--gait-action.*'absolute'"):
         TrainingEnv(gait_action="absolute")
+
+
+def test_the_clearance_target_s_growth_with_speed_is_a_flag_and_a_late_value():
+    from rwalk.rl.config import late_reward
+    from rwalk.runners import train
+
+    training = train.parse_args(["--task", "adaptive_gait", "--costs",
+                                 "--env.costs.clearance-target-per-speed", "0.05",
+                                 "--late-iterations", "5",
+                                 "--late-clearance-target-per-speed", "0.1"])  # fmt: skip
+    assert training.env.costs.clearance_target_per_speed == 0.05
+    late = late_reward(training.train, training.env)["costs"]
+    assert late == dataclasses.replace(training.env.costs, clearance_target_per_speed=0.1)

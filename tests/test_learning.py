@@ -178,6 +178,15 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
             "--late-clearance-target 9.0: GaitCosts.clearance_target must be > 0 and within",
         ),
         (
+            ["--costs", "--late-iterations", "5", "--late-clearance-target-per-speed", "-1"],
+            "--late-clearance-target-per-speed must be >= 0, got -1.0",
+        ),
+        (
+            ["--costs", "--late-iterations", "5", "--late-clearance-target-per-speed", "1"],
+            "--late-clearance-target-per-speed 1.0: GaitCosts.clearance_target_per_speed 1.0 s "
+            "asks 0.133333 m at 0.133333 m/s",
+        ),
+        (
             [
                 "--distill",
                 "x.pt",

@@ -56,6 +56,7 @@ LATE_VALUES = {
     "late_sigma": ("shaping", "sigma"),
     "late_sigma_per_speed": ("shaping", "sigma_per_speed"),
     "late_clearance_target": ("costs", "clearance_target"),
+    "late_clearance_target_per_speed": ("costs", "clearance_target_per_speed"),
 }
 #: rwalk-train's --logger choices (rsl-rl's writers).
 LOGGERS = ("tensorboard", "wandb")
@@ -205,7 +206,8 @@ class TrainConfig:
     bought precision and cost new-map falls on one seed of two (docs/learning.md)"""
     late_iterations: int | None = None
     """the last N of --max-iterations train with the reward's values that --late-tracking,
-    --late-sigma, --late-sigma-per-speed and --late-clearance-target give (the costs moved on a
+    --late-sigma, --late-sigma-per-speed, --late-clearance-target and
+    --late-clearance-target-per-speed give (the costs moved on a
     policy that has climbed the curriculum; docs/adaptive.md), the optimizer, curriculum and
     episodes going on (a stage longer than the run: all of it, as a resume that shortens a run
     leaves it); 0: no such stage; None: the task's stage where the physics is randomised
@@ -225,6 +227,10 @@ class TrainConfig:
     late_clearance_target: float | None = None
     """--late-iterations: the gait costs' clearance target (--env.costs.clearance-target)
     in that stage, m; None: unchanged"""
+    late_clearance_target_per_speed: float | None = None
+    """--late-iterations: the clearance target's growth with the target speed
+    (--env.costs.clearance-target-per-speed: max(clearance target, this x v*)) in that
+    stage, s; None: unchanged"""
     flat_kinds: tuple[str, ...] = ()
     """the envs on these kinds of tile (of --terrain-kinds) walk their tile's level 0, flat
     at every kind, from iteration --flat-from until --flat-until, then walk the curriculum
@@ -600,6 +606,7 @@ def late_reward(train: TrainConfig, env: EnvConfig) -> dict[str, Any]:
         try:
             parts[part] = dataclasses.replace(parts.get(part, getattr(env, part)),
                                               **{field_name: value})  # fmt: skip
+            dataclasses.replace(env, **{part: parts[part]})  # with the env's speeds
         except ValueError as error:
             raise ValueError(f"{show_flag(name, value)}: {error}") from None
     return parts

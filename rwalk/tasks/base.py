@@ -88,7 +88,7 @@ class Task:
         """Each env's action of the step before. Shape: (N, action_dim)."""
         self._seed = 0
         if config.costs is not None:
-            config.costs.check_reach(world.geometry)
+            config.costs.check_reach(world.geometry, config.top_speed)
 
     # ------------------------------------------------------------ configs
     @classmethod
