@@ -103,12 +103,17 @@ class GaitCosts:
 
     def __post_init__(self) -> None:
         _require_finite_numbers(self)
-        for name in ("clearance", "slip", "power", "stumble", "clearance_target_per_speed"):
+        for name in ("clearance", "slip", "power", "stumble"):
             if getattr(self, name) < 0:
                 raise ValueError(
                     f"GaitCosts.{name} is the size of a cost and must be >= 0, "
                     f"got {getattr(self, name)!r}"
                 )
+        if self.clearance_target_per_speed < 0:
+            raise ValueError(
+                f"GaitCosts.clearance_target_per_speed is seconds (metres per m/s) and must be "
+                f">= 0, got {self.clearance_target_per_speed!r}"
+            )
         self.check_reach(LegGeometry())
 
     def check_reach(self, geometry: LegGeometry, top_speed: float = 0.0) -> None:
