@@ -155,7 +155,8 @@ class Shaping:
     action_rate: float = 0.0
     """Cost per unit of the action's squared change since the last step, summed over its
     values (legged_gym's ``action_rate``; an episode's first step counts from the zero
-    action, the base gait). A size >= 0; 0: no term."""
+    action, the base gait). A size >= 0; 0: the term at weight 0 (exact zeros), so that a
+    late stage can raise it (--late-action-rate)."""
 
     def __post_init__(self) -> None:
         _require_finite_numbers(self)
@@ -204,22 +205,18 @@ def action_rate(action: Tensor, last_action: Tensor) -> Tensor:
 
 
 def shaping_terms(shaping: Shaping) -> tuple[RewardTerm, ...]:
-    """The terms of ``shaping``: ``tracking_kernel``, ``alive`` and, where it has a size,
-    ``action_rate`` (minus its size times ``action_rate`` of the task's last two actions)."""
-    terms = (
+    """The terms of ``shaping``: ``tracking_kernel``, ``alive`` and ``action_rate`` (minus
+    its size times ``action_rate`` of the task's last two actions), each at its weight, 0
+    included: the same terms whatever the values, so that ``Core.set_reward`` can move any
+    of them."""
+    return (
         RewardTerm("tracking_kernel", shaping.tracking,
                    lambda s: tracking_kernel(s.forward_velocity, s.v_target,
                                              kernel_width(shaping, s.v_target))),
         RewardTerm("alive", shaping.alive, lambda s: s.forward_velocity * 0.0 + 1.0),
+        RewardTerm("action_rate", -shaping.action_rate,
+                   lambda s: action_rate(s.sources.task.action, s.sources.task.last_action)),
     )  # fmt: skip
-    if not shaping.action_rate:
-        return terms
-    rate = RewardTerm(
-        "action_rate",
-        -shaping.action_rate,
-        lambda s: action_rate(s.sources.task.action, s.sources.task.last_action),
-    )
-    return (*terms, rate)
 
 
 def quat_to_rpy(quat: Tensor) -> Tensor:

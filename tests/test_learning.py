@@ -178,6 +178,10 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
             "--late-clearance-target 9.0: GaitCosts.clearance_target must be > 0 and within",
         ),
         (
+            ["--late-iterations", "5", "--late-action-rate", "-1"],
+            "--late-action-rate must be >= 0, got -1.0",
+        ),
+        (
             ["--costs", "--late-iterations", "5", "--late-clearance-target-per-speed", "-1"],
             "--late-clearance-target-per-speed must be >= 0, got -1.0",
         ),

@@ -59,11 +59,12 @@ def test_shaping_terms_are_added_and_reported_and_the_spec_env_has_none():
     core = Core(shaped, 2, seed=0)
     core.reset()
     result = core.step(torch.zeros(2, 12))
-    assert tuple(result.terms) == (*TERM_NAMES, "tracking_kernel", "alive")
+    assert tuple(result.terms) == (*TERM_NAMES, "tracking_kernel", "alive", "action_rate")
     v = core.obs[:, 7]
     expected = 100.0 * tracking_kernel(v, core.task.v_target, 0.02)
     torch.testing.assert_close(result.terms["tracking_kernel"], expected)
     assert result.terms["alive"].tolist() == [2.0, 2.0]
+    assert result.terms["action_rate"].tolist() == [0.0, 0.0]  # weight 0: exact zeros
     assert torch.equal(result.reward, sum(result.terms.values(), torch.zeros(2)))
     env = ResidualWalkEnv(seed=0, settle_steps=5)
     env.reset()
@@ -107,10 +108,36 @@ def test_set_reward_refuses_a_missing_part_and_a_change_of_terms():
     core = Core(dataclasses.replace(FLAT, shaping=Shaping(tracking=300.0)), 1, seed=0)
     with pytest.raises(ValueError, match="no costs to change"):
         core.set_reward(costs=GaitCosts())
-    with pytest.raises(ValueError, match=r"not which terms.*'action_rate'"):
-        core.set_reward(shaping=Shaping(tracking=300.0, action_rate=1.0))
     assert core.config.shaping == Shaping(tracking=300.0)  # a refusal changes nothing
-    assert [t.name for t in core.terms] == [*TERM_NAMES, "tracking_kernel", "alive"]
+    assert [t.name for t in core.terms] == [*TERM_NAMES, "tracking_kernel", "alive",
+                                            "action_rate"]  # fmt: skip
+    costed = Core(dataclasses.replace(FLAT, costs=GaitCosts()), 1, seed=0)
+    names = [t.name for t in costed.terms]
+    with pytest.raises(ValueError, match=r"not which terms.*'stumble'"):
+        costed.set_reward(costs=GaitCosts(stumble=1.0))
+    assert costed.config.costs == GaitCosts() and [t.name for t in costed.terms] == names
+
+
+def test_set_reward_raises_the_action_rate_from_weight_0():
+    """A late stage's --late-action-rate: the term is there at weight 0 (exact zeros) and
+    costs the action's change from the next step on, as in a core built with it."""
+    old = dataclasses.replace(FLAT, shaping=Shaping(tracking=300.0))
+    late = Shaping(tracking=300.0, action_rate=20.0)
+    switched, built = Core(old, 2, seed=0), Core(dataclasses.replace(old, shaping=late), 2, seed=0)
+    for core in (switched, built):
+        core.reset()
+    gen = torch.Generator().manual_seed(0)
+    for step in range(6):
+        if step == 3:
+            switched.set_reward(shaping=late)
+        action = torch.rand(2, 12, generator=gen) * 2 - 1
+        got, theirs = (core.step(action).terms for core in (switched, built))
+        if step < 3:
+            assert torch.equal(got["action_rate"], torch.zeros(2))
+        else:
+            assert torch.equal(got["action_rate"], theirs["action_rate"])
+            assert bool((got["action_rate"] < 0).all())
+    assert switched.config == built.config
 
 
 def test_the_action_rate_by_hand():
@@ -190,6 +217,14 @@ def test_rwalk_train_sets_shaping_and_the_interval_from_its_command_line():
     assert training.env.shaping == Shaping(tracking=300.0, sigma=0.03, action_rate=20.0)
     assert training.env.command_interval == 4.0 and training.env.command_range == (0.07, 0.2)
     assert "command" in training.train.policy_obs  # the policy reads what it is asked
+
+
+def test_the_action_rate_is_a_late_value_beside_the_default_stage_s_kernel():
+    training = train.parse_args(["--late-action-rate", "20"])
+    assert training.train.late_iterations == 50 and training.train.late_tracking == 200.0
+    late = late_reward(training.train, training.env)["shaping"]
+    assert late == Shaping(tracking=200.0, action_rate=20.0)
+    assert training.env.shaping == Shaping()  # every term at weight 0 before the stage
 
 
 def test_the_kernel_s_growth_with_speed_is_a_flag_and_a_late_value():

@@ -57,6 +57,7 @@ LATE_VALUES = {
     "late_sigma_per_speed": ("shaping", "sigma_per_speed"),
     "late_clearance_target": ("costs", "clearance_target"),
     "late_clearance_target_per_speed": ("costs", "clearance_target_per_speed"),
+    "late_action_rate": ("shaping", "action_rate"),
 }
 #: rwalk-train's --logger choices (rsl-rl's writers).
 LOGGERS = ("tensorboard", "wandb")
@@ -206,8 +207,8 @@ class TrainConfig:
     bought precision and cost new-map falls on one seed of two (docs/learning.md)"""
     late_iterations: int | None = None
     """the last N of --max-iterations train with the reward's values that --late-tracking,
-    --late-sigma, --late-sigma-per-speed, --late-clearance-target and
-    --late-clearance-target-per-speed give (the costs moved on a
+    --late-sigma, --late-sigma-per-speed, --late-clearance-target,
+    --late-clearance-target-per-speed and --late-action-rate give (the costs moved on a
     policy that has climbed the curriculum; docs/adaptive.md), the optimizer, curriculum and
     episodes going on (a stage longer than the run: all of it, as a resume that shortens a run
     leaves it); 0: no such stage; None: the task's stage where the physics is randomised
@@ -231,6 +232,9 @@ class TrainConfig:
     """--late-iterations: the clearance target's growth with the target speed
     (--env.costs.clearance-target-per-speed: max(clearance target, this x v*)) in that
     stage, s; None: unchanged"""
+    late_action_rate: float | None = None
+    """--late-iterations: the cost of the action's change from step to step
+    (--env.shaping.action-rate) in that stage; None: unchanged"""
     flat_kinds: tuple[str, ...] = ()
     """the envs on these kinds of tile (of --terrain-kinds) walk their tile's level 0, flat
     at every kind, from iteration --flat-from until --flat-until, then walk the curriculum

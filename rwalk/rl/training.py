@@ -516,8 +516,8 @@ def _nominal_physics(runner, keep: tuple[str, ...], entropy: float | None, itera
 
 
 def _late_reward(runner, train: TrainConfig, iteration: int, *, say) -> None:
-    """From now on the reward has the late stage's values (--late-tracking, --late-sigma,
-    --late-clearance-target)."""
+    """From now on the reward has the late stage's values (the --late-* flags of
+    ``LATE_VALUES``)."""
     runner.env.core.set_reward(**late_reward(train, runner.env.core.config))
     values = ", ".join(f"{flag(f'env.{part}.{field}')} {getattr(train, name):g}"
                        for name, (part, field) in LATE_VALUES.items()
