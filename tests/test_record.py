@@ -87,8 +87,7 @@ def test_the_command_line_builds_what_the_older_flags_built():
         keep = new.train.nominal_physics_keep
         staged = dataclasses.replace(migrated.train, nominal_physics_iterations=stage,
                                      nominal_physics_keep=keep, late_iterations=late,
-                                     late_tracking=200.0 if late else None,
-                                     late_action_rate=20.0 if late else None)  # fmt: skip
+                                     late_tracking=200.0 if late else None)  # fmt: skip
         env = dataclasses.replace(migrated.env, shaping=Shaping() if late else None)
         assert new == dataclasses.replace(migrated, env=env, train=staged)
         legacy = args.env.config(threads=1)
@@ -134,13 +133,6 @@ def test_a_record_written_before_a_field_existed_reads_that_field_as_its_default
     data = record_of(train.parse_args(SMALL))
     assert data["train"].pop("nominal_physics_iterations") == 100
     assert data["train"].pop("nominal_physics_entropy_coef") is None
-    # its last 50 also with the action rate: a record written before --late-action-rate
-    # existed trained the stage without it
-    assert data["train"].pop("late_action_rate") == 20.0
-    (tmp_path / "config.json").write_text(json.dumps(data))
-    kernel_only = read_record(tmp_path / "config.json").train
-    assert (kernel_only.late_iterations, kernel_only.late_tracking) == (50, 200.0)
-    assert kernel_only.late_action_rate is None
     # and its last 50 iterations train with the speed kernel: a record written before the
     # late stage existed trained without one
     assert data["train"].pop("late_iterations") == 50

@@ -219,16 +219,12 @@ def test_rwalk_train_sets_shaping_and_the_interval_from_its_command_line():
     assert "command" in training.train.policy_obs  # the policy reads what it is asked
 
 
-def test_the_default_stage_raises_the_action_rate_beside_the_kernel():
-    training = train.parse_args([])
+def test_the_action_rate_is_a_late_value_beside_the_default_stage_s_kernel():
+    training = train.parse_args(["--late-action-rate", "20"])
     assert training.train.late_iterations == 50 and training.train.late_tracking == 200.0
-    assert training.train.late_action_rate == 20.0
     late = late_reward(training.train, training.env)["shaping"]
     assert late == Shaping(tracking=200.0, action_rate=20.0)
     assert training.env.shaping == Shaping()  # every term at weight 0 before the stage
-    other = train.parse_args(["--late-action-rate", "5"])  # the flag replaces the value
-    assert late_reward(other.train, other.env)["shaping"] == Shaping(tracking=200.0,
-                                                                     action_rate=5.0)  # fmt: skip
 
 
 def test_the_kernel_s_growth_with_speed_is_a_flag_and_a_late_value():

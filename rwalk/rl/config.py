@@ -213,8 +213,8 @@ class TrainConfig:
     episodes going on (a stage longer than the run: all of it, as a resume that shortens a run
     leaves it); 0: no such stage; None: the task's stage where the physics is randomised
     (Task.late_stage: residual_walk the last sixth, 50 of the default 300, with the speed kernel
-    at --late-tracking 200 and --late-action-rate 20, their terms at weight 0 before; the late
-    flags given replace its values; adaptive_gait none), else 0"""
+    at --late-tracking 200, its terms at weight 0 before; the late flags given replace its
+    values; adaptive_gait none), else 0"""
     late_tracking: float | None = None
     """--late-iterations: the training kernel's weight (--env.shaping.tracking) in that
     stage; None: unchanged"""

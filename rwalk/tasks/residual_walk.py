@@ -25,9 +25,8 @@ class ResidualWalk(Task):
     action_layout = "12 foot residuals (FL, FR, RL, RR x x, y, z)"
     single_step = True
     nominal_physics_share = 1 / 3  # the last 100 of the default 300 (docs/learning.md)
-    # the last 50 of the default 300 with the speed kernel at 200 and the action rate at 20
-    # (docs/learning.md)
-    late_stage = (1 / 6, {"late_tracking": 200.0, "late_action_rate": 20.0})
+    # the last 50 of the default 300 with the speed kernel at 200 (docs/learning.md)
+    late_stage = (1 / 6, {"late_tracking": 200.0})
 
     def __init__(self, config, world, num_envs: int) -> None:
         super().__init__(config, world, num_envs)
