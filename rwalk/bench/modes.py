@@ -53,10 +53,10 @@ control period (``core.control_dt``: ``core.decimation`` physics substeps):
      core) over the single-env ResidualWalkEnv
   t  thread scaling: b and a on 1 thread and on all cores, all four in one process,
      alternating
-  s  two default rwalk-train runs of N envs sharing the machine: seconds per iteration
-     of one alone (as the trainers run, and with --no-share-cores), then of each of two
-     started side by side, and their speed over the one alone's (rwalk.bench.sharing;
-     threads: the trainings' own)
+  s  two rwalk-train --share-cores runs of N envs sharing the machine: seconds per
+     iteration of one alone (with --share-cores, and on fixed threads as the trainers run
+     by default), then of each of two started side by side, and their speed over the
+     one alone's (rwalk.bench.sharing; threads: the trainings' own)
   r  the cost of the robust training's world: rsl-rl's env step (RslRlVecEnv.step,
      random actions, its observation groups built, no PPO) on three envs of the same
      N in one process, alternating: the plain training env (one rough world), the

@@ -154,9 +154,10 @@ def summary(results: list[dict]) -> list[str]:
         if r["mode"] == "s":
             speeds = " and ".join(f"{v:.2f}x" for v in r["side_by_side_speed"])
             out.append(
-                f"(s) two default trainings of N={r['num_envs']} side by side: each at {speeds} "
-                f"of one alone ({r['alone_s_per_iteration']:.2f} s per iteration alone; with "
-                f"--no-share-cores {r['alone_fixed_threads_s_per_iteration']:.2f} s)"
+                f"(s) two --share-cores trainings of N={r['num_envs']} side by side: each at "
+                f"{speeds} of one alone ({r['alone_s_per_iteration']:.2f} s per iteration "
+                f"alone; on fixed threads, the default, "
+                f"{r['alone_fixed_threads_s_per_iteration']:.2f} s)"
             )
     for r in results:
         if r["mode"] == "r":

@@ -3,10 +3,10 @@
 A default ``rwalk-train`` of N envs runs alone, then two of them start side by side;
 each one's seconds per iteration (rsl-rl's collection plus learning time of every
 iteration after the first ``SKIP``, median) are compared with the run alone's. The
-run alone is timed twice, as the trainers run (torch's threads follow what other
-processes leave free: ``rwalk.threads.SharedCores``) and with ``--no-share-cores``
-(always all threads: what they did before), so that the sharing is seen beside what it
-costs one training alone. Every run keeps libgomp's own wait policy
+runs share the cores (``--share-cores``: torch's threads follow what other processes
+leave free, ``rwalk.threads.SharedCores``); the run alone is timed again on fixed threads
+(the trainers' default), so that the sharing is seen beside what it costs one training
+alone. Every run keeps libgomp's own wait policy
 (``OMP_WAIT_POLICY`` is left unset).
 """
 
@@ -51,15 +51,17 @@ def seconds_per_iteration(log_dir: Path) -> float:
 
 
 def measure(n: int, iterations: int = ITERATIONS, flags: tuple[str, ...] = ()) -> dict:
-    """(s) at N envs: seconds per iteration alone (as the trainers run, and with
-    --no-share-cores), of each of two side by side, and each one's speed over the alone
-    run's. ``flags``: more rwalk-train flags (the default training's: none)."""
+    """(s) at N envs: seconds per iteration alone (with --share-cores, and on fixed threads
+    as the trainers run by default), of each of two side by side with --share-cores, and
+    each one's speed over the alone run's. ``flags``: more rwalk-train flags (the default
+    training's: none)."""
     env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
     with tempfile.TemporaryDirectory() as folder:
         root = Path(folder)
-        _finish(_start(n, root / "alone", iterations, env, flags))
-        _finish(_start(n, root / "alone_fixed", iterations, env, (*flags, "--no-share-cores")))
-        pair = [_start(n, root / f"side_{i}", iterations, env, flags) for i in range(2)]
+        shared = (*flags, "--share-cores")
+        _finish(_start(n, root / "alone", iterations, env, shared))
+        _finish(_start(n, root / "alone_fixed", iterations, env, flags))
+        pair = [_start(n, root / f"side_{i}", iterations, env, shared) for i in range(2)]
         for process in pair:
             _finish(process)
         alone = seconds_per_iteration(root / "alone")

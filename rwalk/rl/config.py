@@ -88,11 +88,14 @@ class RunSettings:
     threads: int = 0
     """physics and torch threads (0 = all cores; under torchrun or with several collectors,
     per process: 0 = the machine's cores / its processes)"""
-    share_cores: bool = True
+    share_cores: bool = False
     """torch on one thread while other processes keep this one's cores busy (two trainings
     then share the cores instead of fighting over them), on --threads again when they are
     free (rwalk.threads.SharedCores; not under torchrun or with several collectors, whose
-    processes keep their shares); --no-share-cores: always on --threads"""
+    processes keep their shares). Off by default: where torch rounds differently on one
+    thread and on several (a Xeon with AVX-512 here, docs/performance.md), what the run
+    learns would then depend on what else ran on the machine; off, a run is reproducible
+    to the byte on one machine"""
 
     def __post_init__(self) -> None:
         require_at_least(self, 1, "max_iterations", "save_interval")
