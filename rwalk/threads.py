@@ -5,8 +5,10 @@ Torch's intra-op threads are OpenMP's (libgomp); an idle one spins for a while b
 sleeps. Alone, that spinning is what makes a training fast; beside another training on
 the same cores the spinning threads of both fight (each ran at 0.08–0.33x of its speed
 alone), and threads that always sleep cost a training alone 5–17% (docs/performance.md).
-So the trainers keep libgomp's spinning and poll ``SharedCores``: while other processes
-keep this process's cores busy, torch runs on one thread. Imports nothing heavy.
+So with --share-cores the trainers keep libgomp's spinning and poll ``SharedCores``: while
+other processes keep this process's cores busy, torch runs on one thread. Opt-in, because
+on some CPUs one thread and two round differently and the run then learns what the
+machine's load decided (docs/performance.md). Imports nothing heavy.
 """
 
 from __future__ import annotations
@@ -31,9 +33,10 @@ class SharedCores:
     cores this process may run on (``/proc/stat``) less this process's own CPU time
     (``/proc/self/stat``) says how many cores other processes used meanwhile. Above
     ``busy`` cores, torch runs on one thread (its idle OpenMP threads soon sleep, and the
-    cores are shared); below ``free`` cores, on ``threads`` again. A training's checkpoints
-    came out bit for bit the same on 1 and 2 threads (docs/performance.md), so what it
-    learns does not depend on when it shared. Where ``/proc`` cannot be read, nothing
+    cores are shared); below ``free`` cores, on ``threads`` again. Where torch's math gives
+    the same bits on 1 and 2 threads what a run learns does not depend on when it shared;
+    on an AVX-512 Xeon it does not give them (docs/performance.md), which is why the
+    trainers share only with --share-cores. Where ``/proc`` cannot be read, nothing
     changes.
     """
 
