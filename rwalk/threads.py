@@ -33,11 +33,8 @@ class SharedCores:
     cores this process may run on (``/proc/stat``) less this process's own CPU time
     (``/proc/self/stat``) says how many cores other processes used meanwhile. Above
     ``busy`` cores, torch runs on one thread (its idle OpenMP threads soon sleep, and the
-    cores are shared); below ``free`` cores, on ``threads`` again. Where torch's math gives
-    the same bits on 1 and 2 threads what a run learns does not depend on when it shared;
-    on an AVX-512 Xeon it does not give them (docs/performance.md), which is why the
-    trainers share only with --share-cores. Where ``/proc`` cannot be read, nothing
-    changes.
+    cores are shared); below ``free`` cores, on ``threads`` again (opt-in: the module's
+    docstring says why). Where ``/proc`` cannot be read, nothing changes.
     """
 
     def __init__(self, threads: int, interval: float = 2.0, busy: float = 0.5,
