@@ -111,7 +111,7 @@ class EnvConfig:
 
     def __post_init__(self) -> None:
         def bad(name: str, why: str) -> ValueError:
-            return ValueError(f"EnvConfig.{name} {why}, got {getattr(self, name)!r}")
+            return ValueError(f"{type(self).__name__}.{name} {why}, got {getattr(self, name)!r}")
 
         kinds = (("gait", GaitParameters), ("reward_weights", RewardWeights), ("physics", Physics))
         optional = (

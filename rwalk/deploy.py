@@ -60,7 +60,7 @@ import numpy as np
 
 from rwalk import exactmath
 from rwalk.constants import OBS_CONTACT, OBS_DIM, OBS_LINVEL, OBS_POS, OBSERVATION_SENSORS
-from rwalk.gaitmath import advance_phase, trot_targets
+from rwalk.gaitmath import advance_phase, speed_schedule, trot_targets
 from rwalk.kinematics import LegGeometry, leg_ik
 
 #: The readings ``Controller.step`` takes: (sensor name, width), in order (65 values).
@@ -78,7 +78,7 @@ OLDER_RUNTIMES = dict(zip(TASKS, RUNTIMES, strict=True))
 #: What an export folder holds for the runtime.
 FILES = ("policy.json", "policy.onnx")
 #: What the adaptive task's first four actions do (``AdaptiveGaitConfig.gait_action``).
-GAIT_ACTIONS = ("delta", "target")
+GAIT_ACTIONS = ("delta", "target", "schedule")
 
 # Bounds of policy.json, checked when a folder loads (an export's values in brackets).
 #: Largest policy.json read (an export's: about 80 KB, mostly the 150-tick gait tables).
@@ -99,6 +99,8 @@ MAX_RNN_LAYERS = 8
 MAX_RNN_HIDDEN = 4096
 #: Largest length: legs, hip points, foot targets, gait sizes, residual scale (0.16). Metres.
 MAX_LENGTH = 10.0
+#: Slowest target velocity and shortest stride of a "schedule" gait action (m/s, m).
+MIN_SPEED = 1e-3
 #: Shortest thigh and shin (the IK divides by 2 x thigh x shin). Metres.
 MIN_LEG_LENGTH = 1e-3
 #: Largest joint limit (2.7). Radians.
@@ -204,8 +206,9 @@ class Controller:
 
     @property
     def command(self) -> float | None:
-        """The target velocity (m/s) a commanded policy (piece ``command``) reads; set it
-        (a finite number, else ValueError)."""
+        """The target velocity (m/s) a commanded policy (piece ``command``) reads, and a
+        "schedule" gait follows; set it (a finite number, forward for a schedule, else
+        ValueError)."""
         return self._command
 
     @command.setter
@@ -214,6 +217,12 @@ class Controller:
         if value is not None and not math.isfinite(number):
             raise ValueError(f"controller.command must be a finite number (m/s) or None, "
                              f"got {_show(value)}")  # fmt: skip
+        scheduled = getattr(self.gait, "gait_action", None) == "schedule"
+        if scheduled and value is not None and not number >= MIN_SPEED:
+            raise ValueError(
+                f"this policy's gait follows the target velocity's schedule: command a "
+                f"forward speed (>= {MIN_SPEED:g} m/s), got {_show(value)}"
+            )
         self._command = None if value is None else number
 
     def reset(self, readings, tick: int = 0) -> np.ndarray:
@@ -283,7 +292,7 @@ class Controller:
             return self._hold(f"a non-finite policy output {action[0].tolist()}")
         self.state = state
         action = np.minimum(np.maximum(action[0].astype(np.float64), -1.0), 1.0)
-        self.safe = self.gait.joints(action)
+        self.safe = self.gait.joints(action, self._command)
         self.held = False
         return self.safe
 
@@ -601,6 +610,11 @@ def _check_adaptive(fields: _Fields, gait: dict, adaptive: dict) -> None:
         for key in ("low", "high", "start")
     )
     fields.array(adaptive, "deploy.adaptive.delta", (4,), 0.0, MAX_LENGTH)
+    if adaptive["gait_action"] == "schedule":
+        schedule = fields.section(adaptive, "deploy.adaptive.schedule")
+        fields.number(schedule, "deploy.adaptive.schedule.stride", MIN_SPEED, MAX_LENGTH)
+        fields.array(schedule, "deploy.adaptive.schedule.window", (4,), 0.0, 1.0)
+        fields.number(schedule, "deploy.adaptive.schedule.speed", MIN_SPEED, MAX_LENGTH)
     for key in ("low", "high", "start"):  # the cycle time: the phase advances by dt / it
         fields.check(adaptive[key][2], f"deploy.adaptive.{key}[2]", *CYCLE_TIME_RANGE)
     if not (high - low >= MIN_PARAM_SPAN).all():
@@ -872,9 +886,10 @@ class TableGait:
     def phase_features(self) -> np.ndarray:
         return self.table[self.tick]
 
-    def joints(self, action: np.ndarray | None) -> np.ndarray:
+    def joints(self, action: np.ndarray | None, command: float | None = None) -> np.ndarray:
         """This period's joint targets for a clipped action (None: the base gait's, the
-        state unchanged); an action also moves the gait on by one period. (K, 12)."""
+        state unchanged); an action also moves the gait on by one period (the command
+        changes nothing: the trot's speed is fixed). (K, 12)."""
         targets = self.targets[(self.tick + np.arange(self.substeps)) % self.period]
         if action is not None:
             targets = targets + action.reshape(4, 3) * self.residual_scale
@@ -885,8 +900,9 @@ class TableGait:
 
 
 class AdaptiveGait:
-    """The adaptive task's gait: four parameters moved by the action (its "delta" or
-    "target" reading), a continuous phase, foot paths by ``rwalk.gaitmath``, residuals.
+    """The adaptive task's gait: four parameters moved by the action (its "delta",
+    "target" or "schedule" reading), a continuous phase, foot paths by ``rwalk.gaitmath``,
+    residuals.
     Built from a deploy section that ``_check_deploy`` has passed."""
 
     action_dim = 16
@@ -910,7 +926,19 @@ class AdaptiveGait:
         self.centre = 0.5 * (self.low + self.high)
         self.half_width = 0.5 * (self.high - self.low)
         self.gait_action = adaptive["gait_action"]
+        if self.gait_action == "schedule":
+            schedule = adaptive["schedule"]
+            self.stride = float(schedule["stride"])
+            self.span = np.array(schedule["window"], dtype=np.float64) * self.half_width
+            self.speed = float(schedule["speed"])
+            """The target velocity when the policy reads no command. m/s."""
         self.reset(0)
+
+    def scheduled(self, command: float | None) -> np.ndarray:
+        """The gait the target velocity asks for (``rwalk.gaitmath.speed_schedule``)."""
+        speed = self.speed if command is None else command
+        return speed_schedule(np.array([speed]), self.stride, self.low, self.high,
+                              self.start)[0]  # fmt: skip
 
     def reset(self, tick: int) -> None:
         self.params = self.start.copy()
@@ -926,16 +954,20 @@ class AdaptiveGait:
         angle = 2.0 * math.pi * self.phase
         return np.concatenate([exactmath.sin(angle), exactmath.cos(angle)])
 
-    def joints(self, action: np.ndarray | None) -> np.ndarray:
+    def joints(self, action: np.ndarray | None, command: float | None = None) -> np.ndarray:
         """This period's joint targets for a clipped action (None: the current gait with
         no residuals, the state unchanged); an action moves the parameters and the
-        phase as the env does. Shape: (K, 12)."""
+        phase as the env does, with "schedule" around the gait that ``command`` (m/s, the
+        export's fixed speed when None) asks for. Shape: (K, 12)."""
         params = self.params
         if action is not None:
             if self.gait_action == "delta":
                 moved = params + action[:4] * self.delta
             else:
-                target = self.centre + action[:4] * self.half_width
+                if self.gait_action == "target":
+                    target = self.centre + action[:4] * self.half_width
+                else:
+                    target = self.scheduled(command) + action[:4] * self.span
                 moved = params + np.minimum(np.maximum(target - params, -self.delta), self.delta)
             params = np.minimum(np.maximum(moved, self.low), self.high)
         k = self.substeps

@@ -97,3 +97,26 @@ def trot_targets(phase, step_height, step_length, stance_z, duty_factor: float, 
     targets[..., 0] = x
     targets[..., 2] = z
     return targets, swing
+
+
+def speed_schedule(speed, stride: float, low, high, start):
+    """The gait a target velocity asks for: the cycle clamp(stride / speed) within its
+    range, the stride speed x cycle within its range (so stride / cycle = speed where
+    the ranges allow), the step and body heights of the starting gait. Elementwise IEEE
+    arithmetic on torch tensors or numpy arrays alike (``rwalk.arrayops``), so the
+    runtime computes the env's bits.
+
+    Args:
+        speed: target velocities, > 0. Shape: (N,).
+        stride: the config's ``schedule_stride``, metres.
+        low, high, start: the parameters' ranges and starting gait. Shape: (4,).
+
+    Returns:
+        step_height, step_length, cycle_time, body_height. Shape: (N, 4).
+    """
+    xp = arrayops.of(speed, low)
+    # (1 / speed) * stride: torch computes float / tensor so; written out, numpy does too.
+    cycle = xp.clamp((1.0 / speed) * stride, low[2], high[2])
+    length = xp.clamp(speed * cycle, low[1], high[1])
+    fixed = xp.expand(start, (speed.shape[0], 4))
+    return xp.stack((fixed[:, 0], length, cycle, fixed[:, 3]), axis=-1)

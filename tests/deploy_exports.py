@@ -11,12 +11,15 @@ from pathlib import Path
 import numpy as np
 
 #: The policies exported, by folder: an MLP and a GRU of the residual task's robust run
-#: (observation from start), and a commanded GRU of the adaptive task ("target" actions).
+#: (observation from start), a commanded GRU of the adaptive task ("target" actions) and a
+#: commanded MLP of it whose gait follows the speed's schedule ("schedule" actions).
 POLICIES = {
     "mlp": {"actor": "mlp"},
     "gru": {"actor": "gru"},
     "adaptive": {"actor": "gru", "task": "adaptive_gait", "command_range": (0.05, 0.25),
                  "gait_action": "target"},
+    "schedule": {"actor": "mlp", "task": "adaptive_gait", "command_range": (0.05, 0.25),
+                 "gait_action": "schedule"},
 }  # fmt: skip
 #: The readings of the starts (a file beside the folders): env i's sensors after reset.
 READINGS = "readings.npy"

@@ -11,6 +11,7 @@ import torch
 
 from rwalk import AdaptiveGaitConfig, Core, EnvConfig, GaitCosts, GaitParameters
 from rwalk.constants import OBS_CONTACT, OBS_JOINT_VEL
+from rwalk.gaitmath import speed_schedule
 from rwalk.observations import foot_velocities
 from rwalk.rewards import (
     MID_SWING,
@@ -233,6 +234,76 @@ def test_the_target_action_moves_each_parameter_toward_its_target_at_the_delta_r
     assert torch.equal(task.params[0], task.high)  # reached its top, and stays in range
     assert torch.equal(task.params[1], start[1])
     assert torch.allclose(task.params[2], target, rtol=0, atol=1e-15)
+
+
+# ------------------------------------------------------------------ the schedule action
+def test_speed_schedule_hand_computed_with_torch_and_numpy_alike():
+    low, high = np.array([0.01, 0.04, 0.45, 0.05]), np.array([0.04, 0.16, 0.9, 0.09])
+    start = np.array([0.025, 0.08, 0.6, 0.07])
+    speed = np.array([0.05, 0.1, 0.25, 0.03])
+    got = speed_schedule(speed, 0.06, low, high, start)
+    # 0.05: cycle 0.06 / 0.05 = 1.2 -> 0.9 (its top), stride 0.05 x 0.9 = 0.045;
+    # 0.1: 0.6 s and 0.06 m; 0.25: 0.24 s -> 0.45 (its floor), stride 0.1125;
+    # 0.03: 2 s -> 0.9, stride 0.027 -> 0.04 (its floor). Heights: the start's.
+    want = [[0.025, 0.045, 0.9, 0.07], [0.025, 0.06, 0.6, 0.07],
+            [0.025, 0.1125, 0.45, 0.07], [0.025, 0.04, 0.9, 0.07]]  # fmt: skip
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-15)
+    as_torch = speed_schedule(*(torch.from_numpy(a) for a in (speed,)), 0.06,
+                              *(torch.from_numpy(a) for a in (low, high, start)))  # fmt: skip
+    assert np.array_equal(as_torch.numpy(), got)  # the runtime's bits are the env's
+
+
+def test_the_schedule_action_moves_each_parameter_toward_the_speed_s_gait_and_a_window_of_it():
+    core = _core("adaptive_gait", n=3, gait_action="schedule", command_range=(0.05, 0.25))
+    task = core.task
+    core.reset()
+    scheduled = task.scheduled()
+    want = speed_schedule(task.target.clone(), 0.06, task.low, task.high, task.start)
+    assert torch.equal(scheduled, want)
+    assert torch.equal(task.span, torch.tensor([1.0, 0.25, 0.25, 1.0], dtype=F64) * task.half_width)
+    action = torch.zeros(3, 16, dtype=F64)
+    action[1, :4] = 1.0  # every target a window above the schedule's
+    action[2, :4] = torch.tensor([-1.0, -0.5, 0.5, 0.0])
+    start = task.params.clone()
+    core.step(action)
+    step = torch.clamp(scheduled - start, -task.delta, task.delta)
+    assert torch.equal(task.params[0], torch.clamp(start[0] + step[0], task.low, task.high))
+    for _ in range(80):
+        core.step(action)
+    target = torch.minimum(torch.maximum(scheduled + action[:, :4] * task.span, task.low),
+                           task.high)  # fmt: skip
+    assert torch.allclose(task.params, target, rtol=0, atol=1e-15)
+    assert task.params[1, 1] > scheduled[1, 1] and task.params[2, 2] > scheduled[2, 2]
+
+
+def test_the_schedule_follows_a_new_command():
+    core = _core("adaptive_gait", n=2, gait_action="schedule", command_range=(0.05, 0.25))
+    core.reset()
+    core.task.target[:] = torch.tensor([0.05, 0.2], dtype=F64)
+    # 0.05 m/s: 1.2 s -> the 0.9 s top, 45 mm; 0.2 m/s: 0.3 s, 60 mm (the contract's ranges)
+    want = torch.tensor([[0.025, 0.045, 0.9, 0.07], [0.025, 0.06, 0.3, 0.07]], dtype=F64)
+    assert torch.allclose(core.task.scheduled(), want, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"schedule_stride": 0.0}, r"schedule_stride must be metres in \(0, 0\.16\], got 0\.0"),
+        ({"schedule_stride": math.nan}, r"schedule_stride .*, got nan"),
+        ({"schedule_stride": 0.2}, r"schedule_stride .* got 0\.2"),
+        ({"schedule_window": (1.0, 0.5, 0.5)}, r"schedule_window must be 4 fractions"),
+        ({"schedule_window": (1.0, 1.5, 0.5, 0.0)}, r"schedule_window .* got \(1\.0, 1\.5"),
+        ({"schedule_window": (1.0, math.nan, 0.5, 0.0)}, r"schedule_window .* nan"),
+        (
+            {"gait_action": "schedule", "command_range": (-0.1, 0.2)},
+            r"gait_action 'schedule' needs forward target velocities .* asks for -0\.1",
+        ),
+        ({"gait_action": "schedule", "command_range": (0.0, 0.2)}, r"gait_action .* asks for 0\.0"),
+    ],
+)
+def test_bad_schedules_are_refused_naming_the_field_and_value(changes, message):
+    with pytest.raises(ValueError, match=rf"\w*Config\.{message}"):  # NaN: EnvConfig's check
+        AdaptiveGaitConfig(**changes)
 
 
 # ------------------------------------------------------------------ bad input

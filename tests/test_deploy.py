@@ -59,8 +59,9 @@ def test_the_export_carries_the_gait_and_legs_bit_for_bit(exports):
     )
 
 
-def _env(task: str = "residual_walk", n: int = 3, steps: int = 80) -> BatchedEnv:
-    adaptive = {"command_range": (0.05, 0.25), "gait_action": "target"}
+def _env(task: str = "residual_walk", n: int = 3, steps: int = 80, gait_action: str = "target"
+         ) -> BatchedEnv:  # fmt: skip
+    adaptive = {"command_range": (0.05, 0.25), "gait_action": gait_action}
     config = presets.evaluation_config(task, max_steps=steps, settle_steps=50,
                                        **(adaptive if task == "adaptive_gait" else {}))  # fmt: skip
     return BatchedEnv(n, config, seed=0, task=task)
@@ -68,10 +69,16 @@ def _env(task: str = "residual_walk", n: int = 3, steps: int = 80) -> BatchedEnv
 
 @pytest.mark.parametrize(
     ("policy", "task"),
-    [("mlp", "residual_walk"), ("gru", "residual_walk"), ("adaptive", "adaptive_gait")],
+    [
+        ("mlp", "residual_walk"),
+        ("gru", "residual_walk"),
+        ("adaptive", "adaptive_gait"),
+        ("schedule", "adaptive_gait"),
+    ],
 )
 def test_the_runtime_on_mj_step_follows_the_env_bit_for_bit(exports, policy, task):
-    traces = sim2sim.closed_loop(exports / policy, _env(task), seed=7, steps=80)
+    env = _env(task, gait_action="schedule" if policy == "schedule" else "target")
+    traces = sim2sim.closed_loop(exports / policy, env, seed=7, steps=80)
     assert [t.env for t in traces] == [0, 1, 2]
     assert all(t.steps >= 10 for t in traces)  # (these random policies fall soon)
     assert all(t.first_difference is None and t.max_difference == 0.0 for t in traces)

@@ -154,8 +154,21 @@ BAD_NUMBERS = [
         "adaptive",
         ("deploy", "adaptive", "gait_action"),
         "jump",
-        r"one of \('delta', 'target'\), got 'jump'",
+        r"one of \('delta', 'target', 'schedule'\), got 'jump'",
     ),
+    (
+        "schedule",
+        ("deploy", "adaptive", "schedule", "window", 1),
+        1.5,
+        r"a finite number in \[0, 1\], got 1\.5",
+    ),
+    (
+        "schedule",
+        ("deploy", "adaptive", "schedule", "stride"),
+        0.0,
+        r"a finite number in \[0\.001, 10\], got 0\.0",
+    ),
+    ("schedule", ("deploy", "adaptive", "schedule", "speed"), NAN, r".*got nan"),
     ("gru", ("recurrent",), [1, 2], r"an object \(or absent: an MLP\), got \[1, 2\]"),
     ("gru", ("recurrent", "hidden"), 10**9, r"a whole number in \[1, 4096\], got 1000000000"),
     ("gru", ("input", "shape", 1), -68, r"a whole number in \[1, 4096\], got -68"),
@@ -183,6 +196,8 @@ MISSING = [
     ("mlp", ("input", "shape")),
     ("adaptive", ("deploy", "gait", "duty_factor")),
     ("adaptive", ("deploy", "adaptive")),
+    ("schedule", ("deploy", "adaptive", "schedule")),
+    ("schedule", ("deploy", "adaptive", "schedule", "window")),
     ("gru", ("recurrent", "layers")),
 ]
 

@@ -211,3 +211,23 @@ def test_an_adaptive_policy_moves_its_gait_within_the_bounds(exports, readings):
     assert controller.policy_input(readings)[65:69].tolist() == pytest.approx(
         ((gait.params - gait.centre) / gait.half_width).tolist()
     )
+
+
+def test_a_scheduled_gait_follows_the_command_and_refuses_a_backward_one(exports, readings):
+    controller = Controller(exports / "schedule")
+    gait = controller.gait
+    assert gait.gait_action == "schedule" and gait.stride == 0.06
+    np.testing.assert_array_equal(gait.span, [1.0, 0.25, 0.25, 1.0] * gait.half_width)
+    # 0.05 m/s: 0.06 / 0.05 = 1.2 s, past the 0.9 s top; the stride 0.05 x 0.9 = 45 mm
+    np.testing.assert_allclose(gait.scheduled(0.05), [0.025, 0.045, 0.9, 0.07], rtol=0,
+                               atol=1e-15)  # fmt: skip
+    np.testing.assert_array_equal(gait.scheduled(None), gait.scheduled(gait.speed))
+    controller.reset(readings)
+    for command in (0.0, -0.1):
+        with pytest.raises(ValueError, match=rf"command a forward speed .*got {command}$"):
+            controller.command = command
+    assert controller.command is None  # refused, not kept
+    controller.command = None  # (the export's own speed)
+    controller.command = 0.2
+    targets = controller.step(readings)
+    assert targets.shape == (5, 12) and np.isfinite(targets).all()

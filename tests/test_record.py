@@ -415,3 +415,8 @@ def test_an_evaluation_env_acts_as_the_record_says():
     assert type(config) is AdaptiveGaitConfig and config.gait_action == "target"
     assert config.command_range == (0.1, 0.2) and config.start_spread == 0.0  # the episodes'
     assert config.settle_steps == 3 and config.position_noise == presets.START_SPREAD
+    scheduled = dataclasses.replace(trained, gait_action="schedule", schedule_stride=0.05,
+                                    schedule_window=(0.5, 0.1, 0.2, 0.0))  # fmt: skip
+    config = presets.evaluation_env(scheduled)
+    assert (config.gait_action, config.schedule_stride, config.schedule_window) == (
+        "schedule", 0.05, (0.5, 0.1, 0.2, 0.0))  # fmt: skip

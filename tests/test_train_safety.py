@@ -484,6 +484,19 @@ def test_the_time_budget_does_not_count_building_the_envs_as_an_iteration(tmp_pa
             "--start-spread must be in [0, 1], got 2.0",
         ),
         (["--start-spread", "0.5"], "unrecognized argument '--start-spread'"),
+        (
+            ["--task", "adaptive_gait", "--env.schedule-stride", "nan"],
+            "--env.schedule-stride must be finite, got nan",
+        ),
+        (
+            ["--task", "adaptive_gait", "--env.schedule-window", "1", "2", "0", "0"],
+            "--env.schedule-window must be 4 fractions in [0, 1]",
+        ),
+        (
+            ["--task", "adaptive_gait", "--gait-action", "schedule", "--command-range", "0", "1"],
+            "--gait-action 'schedule' needs forward target velocities (> 0 m/s); "
+            "command_range (0.0, 1.0) asks for 0.0",
+        ),
     ],
 )
 def test_bad_task_flags_are_usage_errors(argv, message, capsys):

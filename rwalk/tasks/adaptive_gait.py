@@ -38,9 +38,10 @@ import torch
 from torch import Tensor
 
 from rwalk import mirror as mirrors
-from rwalk.config import EnvConfig
+from rwalk.config import EnvConfig, _is_number
 from rwalk.constants import ACTION_DIM
 from rwalk.gait import BezierGaitController, GaitParameters, GaitShape, advance_phase
+from rwalk.gaitmath import speed_schedule
 from rwalk.mirror import Mirror
 from rwalk.observations import ObsPiece
 from rwalk.tasks.base import Task
@@ -48,11 +49,13 @@ from rwalk.tasks.base import Task
 #: Random stream of the starting parameters with ``start_spread`` (see ``rwalk.rng``).
 START_GAIT_STREAM = "gait_start"
 #: What the action's first four values do (AdaptiveGaitConfig.gait_action).
-GAIT_ACTIONS = ("delta", "target")
+GAIT_ACTIONS = ("delta", "target", "schedule")
 #: The training's spread of the starting parameters (``AdaptiveGaitConfig.start_spread``).
 TRAINING_START_SPREAD = 0.5
 #: The adapted parameters, in the order of the action's and observation's values.
 ADAPTED: tuple[str, ...] = ("step_height", "step_length", "cycle_time", "body_height")
+#: Longest ``schedule_stride`` accepted (the contract's longest stride). Metres.
+MAX_STRIDE = 0.16
 
 
 class Bound(NamedTuple):
@@ -133,7 +136,16 @@ class AdaptiveGaitConfig(EnvConfig):
     a x delta to the parameter, clipped to its range. "target": each step moves the
     parameter toward centre + a x half_width of its range by at most delta, so an action
     held at 0 holds the range's centre, and a parameter never drifts on the integral of
-    exploration noise."""
+    exploration noise. "schedule": as "target", around the gait the target velocity asks
+    for (``speed_schedule``: a gait command chosen by the speed) instead of the centre,
+    each parameter within ``schedule_window`` x its half_width of it."""
+    schedule_stride: float = 0.06
+    """With gait_action "schedule": the stride (m) the schedule keeps while the cycle can
+    shorten; ``speed_schedule`` tells the rest."""
+    schedule_window: tuple[float, float, float, float] = (1.0, 0.25, 0.25, 1.0)
+    """With gait_action "schedule": how far the action may move each parameter's target
+    from the schedule's (step_height, step_length, cycle_time, body_height), as a
+    fraction in [0, 1] of the parameter's half_width (0 pins it to the schedule)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -142,6 +154,32 @@ class AdaptiveGaitConfig(EnvConfig):
                 f"AdaptiveGaitConfig.gait_action must be one of {', '.join(GAIT_ACTIONS)}, "
                 f"got {self.gait_action!r}"
             )
+        stride = self.schedule_stride
+        if not (_is_number(stride) and math.isfinite(stride) and 0.0 < stride <= MAX_STRIDE):
+            raise ValueError(
+                f"AdaptiveGaitConfig.schedule_stride must be metres in (0, {MAX_STRIDE:g}], "
+                f"got {self.schedule_stride!r}"
+            )
+        window = self.schedule_window
+        if not (
+            isinstance(window, tuple)
+            and len(window) == len(ADAPTED)
+            and all(_is_number(w) and 0.0 <= w <= 1.0 for w in window)  # (NaN fails)
+        ):
+            raise ValueError(
+                f"AdaptiveGaitConfig.schedule_window must be {len(ADAPTED)} fractions in "
+                f"[0, 1] ({', '.join(ADAPTED)}), got {window!r}"
+            )
+        object.__setattr__(self, "schedule_window", tuple(float(w) for w in window))
+        if self.gait_action == "schedule":
+            slowest = (self.expected_velocity if self.command_range is None
+                       else self.command_range[0])  # fmt: skip
+            if not slowest > 0:
+                raise ValueError(
+                    f"AdaptiveGaitConfig.gait_action 'schedule' needs forward target "
+                    f"velocities (> 0 m/s); command_range {self.command_range!r} asks for "
+                    f"{slowest!r}"
+                )
         if not (
             isinstance(self.start_spread, (int, float))
             and not isinstance(self.start_spread, bool)
@@ -185,8 +223,8 @@ class AdaptiveGait(Task):
         "4 gait deltas (step_height, step_length, cycle_time, body_height), then 12 foot residuals"
     )
     observation = ("sensors", "gait")
-    acting_fields = (*Task.acting_fields, "bounds", "gait_action")
-    action_fields = ("bounds", "gait_action")
+    action_fields = ("bounds", "gait_action", "schedule_stride", "schedule_window")
+    acting_fields = (*Task.acting_fields, *action_fields)
 
     @classmethod
     def training_config(cls, world: EnvConfig) -> EnvConfig:
@@ -210,6 +248,10 @@ class AdaptiveGait(Task):
         }
         ranges = {key: getattr(task, key).tolist() for key in ("start", "low", "high", "delta")}
         adaptive = {"gait_action": core.config.gait_action, **ranges}
+        if core.config.gait_action == "schedule":
+            adaptive["schedule"] = {"stride": core.config.schedule_stride,
+                                    "window": list(core.config.schedule_window),
+                                    "speed": core.config.expected_velocity}  # fmt: skip
         return {"runtime": "adaptive", "gait": gait, "adaptive": adaptive}
 
     def __init__(self, config: AdaptiveGaitConfig, world, num_envs: int) -> None:
@@ -229,6 +271,9 @@ class AdaptiveGait(Task):
         self.start = torch.tensor(
             [getattr(cfg.gait, name) for name in ADAPTED], dtype=torch.float64
         )
+        self.span = torch.tensor(cfg.schedule_window, dtype=torch.float64) * self.half_width
+        """With gait_action "schedule": how far the action moves a target from the
+        schedule's. Shape: (4,)."""
         n = num_envs
         self.params = self.start.repeat(n, 1)
         """Current step_height, step_length, cycle_time, body_height. Shape: (N, 4)."""
@@ -277,7 +322,10 @@ class AdaptiveGait(Task):
         if self.config.gait_action == "delta":
             moved = params + action[:, :4] * self.delta
         else:
-            target = self.centre + action[:, :4] * self.half_width
+            if self.config.gait_action == "target":
+                target = self.centre + action[:, :4] * self.half_width
+            else:
+                target = self.scheduled() + action[:, :4] * self.span
             moved = params + torch.minimum(torch.maximum(target - params, -self.delta),
                                            self.delta)  # fmt: skip
         params.copy_(torch.minimum(torch.maximum(moved, self.low), self.high))
@@ -289,6 +337,12 @@ class AdaptiveGait(Task):
         self.sensed.copy_(phases[:, k - 1])
         self.gait_phase.copy_(phases[:, k])
         return np.ascontiguousarray(ctrl.numpy()), swing
+
+    def scheduled(self) -> Tensor:
+        """The gait each env's target velocity asks for (``speed_schedule``). Shape: (N, 4)."""
+        speed = torch.as_tensor(self.v_target, dtype=torch.float64).expand(self.num_envs)
+        cfg = self.config
+        return speed_schedule(speed, cfg.schedule_stride, self.low, self.high, self.start)
 
     @property
     def phase(self) -> Tensor:
