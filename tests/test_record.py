@@ -119,11 +119,12 @@ def test_an_older_record_is_migrated_to_its_resolved_configs(name, trainer, cls)
 
 def test_a_record_written_before_a_field_existed_reads_that_field_as_its_default(tmp_path):
     # Schema-2 records of this round were written before EnvConfig.shaping,
-    # command_interval, TrainConfig.warm_start and nominal_physics_iterations existed: a
-    # missing field is what the run trained with (off).
+    # command_interval, TrainConfig.warm_start, nominal_physics_iterations and the
+    # adaptive schedule's fields existed: a missing field is what the run trained with.
     data = json.loads((RECORDS / "v1_rwalk_train.migrated.json").read_text())
     del data["env"]["shaping"], data["env"]["command_interval"], data["train"]["warm_start"]
     del data["train"]["nominal_physics_iterations"]
+    del data["env"]["schedule_stride"], data["env"]["schedule_window"]  # (2026-11-29)
     (tmp_path / "config.json").write_text(json.dumps(data))
     record = read_record(tmp_path / "config.json", "rsl_rl", Training)
     assert record.env.shaping is None and record.env.command_interval is None
