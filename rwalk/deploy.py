@@ -902,8 +902,7 @@ class TableGait:
 class AdaptiveGait:
     """The adaptive task's gait: four parameters moved by the action (its "delta",
     "target" or "schedule" reading), a continuous phase, foot paths by ``rwalk.gaitmath``,
-    residuals.
-    Built from a deploy section that ``_check_deploy`` has passed."""
+    residuals. Built from a deploy section that ``_check_deploy`` has passed."""
 
     action_dim = 16
     """The action's width: the four parameters' moves, then the 12 foot offsets."""
