@@ -248,8 +248,8 @@ def test_speed_schedule_hand_computed_with_torch_and_numpy_alike():
     want = [[0.025, 0.045, 0.9, 0.07], [0.025, 0.06, 0.6, 0.07],
             [0.025, 0.1125, 0.45, 0.07], [0.025, 0.04, 0.9, 0.07]]  # fmt: skip
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-15)
-    as_torch = speed_schedule(*(torch.from_numpy(a) for a in (speed,)), 0.06,
-                              *(torch.from_numpy(a) for a in (low, high, start)))  # fmt: skip
+    as_torch = speed_schedule(torch.from_numpy(speed), 0.06,
+                              *map(torch.from_numpy, (low, high, start)))  # fmt: skip
     assert np.array_equal(as_torch.numpy(), got)  # the runtime's bits are the env's
 
 
