@@ -118,5 +118,7 @@ def speed_schedule(speed, stride: float, low, high, start):
     # (1 / speed) * stride: torch computes float / tensor so; written out, numpy does too.
     cycle = xp.clamp((1.0 / speed) * stride, low[2], high[2])
     length = xp.clamp(speed * cycle, low[1], high[1])
-    fixed = xp.expand(start, (speed.shape[0], 4))
-    return xp.stack((fixed[:, 0], length, cycle, fixed[:, 3]), axis=-1)
+    gait = xp.expand(start, (speed.shape[0], 4))
+    gait[:, 1] = length
+    gait[:, 2] = cycle
+    return gait

@@ -155,7 +155,7 @@ class AdaptiveGaitConfig(EnvConfig):
                 f"got {self.gait_action!r}"
             )
         stride = self.schedule_stride
-        if not (_is_number(stride) and math.isfinite(stride) and 0.0 < stride <= MAX_STRIDE):
+        if not (_is_number(stride) and 0.0 < stride <= MAX_STRIDE):  # (NaN fails)
             raise ValueError(
                 f"AdaptiveGaitConfig.schedule_stride must be metres in (0, {MAX_STRIDE:g}], "
                 f"got {self.schedule_stride!r}"
