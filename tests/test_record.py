@@ -312,6 +312,17 @@ def test_a_plain_resume_keeps_a_long_runs_length_and_its_late_stage(tmp_path):
     assert shorter.run.max_iterations == 360  # a run setting: the flag still sets it
 
 
+def test_a_plain_resume_keeps_the_runs_threads(tmp_path):
+    # a run trained on one thread beside another resumed on every core would fight it, and
+    # one thread and two round differently on some CPUs
+    flags = ["--threads", "1", "--share-cores", "--log-dir", str(tmp_path)]
+    write_record(tmp_path / "config.json", train.parse_args(flags))
+    resumed = train.parse_args(["--resume", str(tmp_path)])
+    assert (resumed.run.threads, resumed.run.share_cores) == (1, True)
+    given = train.parse_args(["--resume", str(tmp_path), "--threads", "2", "--no-share-cores"])
+    assert (given.run.threads, given.run.share_cores) == (2, False)
+
+
 def test_a_record_lists_the_machines_its_run_trained_on(tmp_path, monkeypatch, capsys):
     """A run repeats bit for bit on one machine only: its record names the machine, and a
     resume on another one adds it and says so."""

@@ -91,9 +91,13 @@ def defaults(cls: type, argv: list[str], read_record) -> Any:
         except (OSError, ValueError):
             saved = None  # --resume names it, before any work
         if saved is not None:  # in its own folder with its own seed and length (its last
-            # stages count back from its end), unless flags say else
+            # stages count back from its end) and threads (one and two round differently
+            # on some CPUs, and two runs side by side each on one would fight on all),
+            # unless flags say else
             run = dataclasses.replace(run, log_dir=str(folder), seed=saved.run.seed,
-                                      max_iterations=saved.run.max_iterations)  # fmt: skip
+                                      max_iterations=saved.run.max_iterations,
+                                      threads=saved.run.threads,
+                                      share_cores=saved.run.share_cores)  # fmt: skip
             return dataclasses.replace(saved, run=run, num_envs=num_envs)
     values = {}
     for f in dataclasses.fields(Preset):

@@ -74,7 +74,8 @@ class RunSettings:
     (num_envs + its settled-start pool) and torch with seed + r)"""
     resume: str = ""
     """continue from this checkpoint file, or from the newest checkpoint that loads in this
-    run folder"""
+    run folder (with the run's --log-dir, --seed, --max-iterations, --threads and
+    --share-cores unless given)"""
     overwrite: bool = False
     """train in a --log-dir that holds another run's checkpoints: delete its checkpoints (all
     but the --resume file) and, unless resuming from it, its TensorBoard event files"""
