@@ -92,7 +92,7 @@ def defaults(cls: type, argv: list[str], read_record) -> Any:
             saved = None  # --resume names it, before any work
         if saved is not None:  # in its own folder with its own seed and length (its last
             # stages count back from its end) and threads (one and two round differently
-            # on some CPUs, and two runs side by side each on one would fight on all),
+            # on some CPUs; runs side by side on one each would fight over every core),
             # unless flags say else
             run = dataclasses.replace(run, log_dir=str(folder), seed=saved.run.seed,
                                       max_iterations=saved.run.max_iterations,
