@@ -67,6 +67,22 @@ def test_a_student_distils_the_teacher_and_resumes(teacher, tmp_path, actor, cap
     assert rows[0].mean_length == 10
 
 
+def test_distill_levels_starts_the_student_on_its_teachers_levels(teacher, tmp_path):
+    saved = load_checkpoint(teacher / "model_1.pt")
+    saved["env_state"]["terrain_level"] = torch.full_like(saved["env_state"]["terrain_level"], 5)
+    torch.save(saved, tmp_path / "model_1.pt")  # a teacher whose curriculum climbed to 5
+    (tmp_path / "config.json").write_text((teacher / "config.json").read_text())
+    levels = {}
+    for name, flags in (("own", []), ("teacher", ["--distill-levels"])):
+        folder = tmp_path / name
+        train.main([*TINY, "--distill", str(tmp_path / "model_1.pt"), *flags,
+                    "--max-iterations", "1", "--log-dir", str(folder)])  # fmt: skip
+        levels[name] = load_checkpoint(folder / "model_0.pt")["env_state"]["terrain_level"]
+    # in one iteration an env moves a level at most
+    assert levels["own"].max() <= 1
+    assert levels["teacher"].min() >= 4 and (levels["teacher"] == 5).any()
+
+
 def test_recurrent_ppo_and_symmetry_train_and_play(tmp_path):
     for name, flags in (("gru", ["--actor", "lstm", "--rnn-hidden-dim", "16"]),
                         ("sym", ["--symmetry"])):  # fmt: skip
@@ -115,6 +131,7 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
         (["--actor", "transformer"], "--actor must be one of mlp, gru, lstm, got 'transformer'"),
         (["--teacher", "--student-actor", "cnn"], "--student-actor must be one of"),
         (["--student-iterations", "5"], "--student-iterations needs --teacher"),
+        (["--distill-levels"], "--distill-levels needs --distill or --student-iterations"),
         (["--symmetry", "--actor", "gru"], "--symmetry needs --actor mlp"),
         (["--symmetry", "--distill", "x.pt"], "--symmetry and --distill do not go together"),
         (["--teacher", "--distill", "x.pt"], "--teacher and --distill do not go together"),

@@ -254,6 +254,10 @@ class TrainConfig:
     goes on with --resume LOG_DIR/student)"""
     student_actor: str = "gru"
     """--student-iterations: the student's model (mlp, gru, lstm)"""
+    distill_levels: bool = False
+    """--distill, --student-iterations: the student's curriculum starts where its teacher's
+    checkpoint left it (each env on its teacher's terrain level; with another number of
+    envs, at the start level) instead of at the start level"""
 
     def __post_init__(self) -> None:
         require_choice(self, "actor", ACTORS)
@@ -296,6 +300,9 @@ class TrainConfig:
         if self.student_iterations and not self.teacher:
             raise ValueError("--student-iterations needs --teacher: the student is distilled "
                              "from the teacher this run trains")  # fmt: skip
+        if self.distill_levels and not (self.distill or self.student_iterations):
+            raise ValueError("--distill-levels needs --distill or --student-iterations: it "
+                             "starts a student on its teacher's terrain levels")  # fmt: skip
         if self.late_iterations and self.distill:
             raise ValueError("--late-iterations changes the reward, which a distilled student "
                              "does not learn from")  # fmt: skip

@@ -438,8 +438,11 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
             distributed.record_parameter_hashes(runner, hashes, group)
         if resume is None:
             start_as_base_gait(runner)  # learn() then broadcasts rank 0's parameters
-            if teacher is not None:  # its actor only: the student's curriculum is its own
-                runner.load(str(teacher.path), data=setup.teacher_data, env_state=False)
+            if teacher is not None:  # its actor (and with --distill-levels its curriculum)
+                levels = args.train.distill_levels
+                runner.load(str(teacher.path), data=setup.teacher_data, env_state=levels)
+                if levels and env.core.terrain_map is not None:
+                    env.core.reset()  # every env restarts on its teacher's level
                 say(f"distilling the teacher {teacher.path}")
             if setup.warm_start is not None:  # its models; this run's optimizer and curriculum
                 runner.load(str(setup.warm_start), {"actor": True, "critic": True},
