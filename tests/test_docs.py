@@ -184,3 +184,32 @@ def test_adaptive_example_runs():
     namespace: dict = {}
     exec(compile(code, "adaptive.md", "exec"), namespace)
     assert namespace["obs"].shape == (69,) and namespace["td"]["command"].shape == (8, 1)
+
+
+def _commands(text: str, marker: str) -> list[list[str]]:
+    """The rwalk-train commands of ``text``'s bash blocks that contain ``marker``, as
+    argv (line continuations joined, comments dropped)."""
+    found = []
+    for block in re.findall(r"```bash\n(.*?)```", text, re.DOTALL):
+        joined = re.sub(r"\\\n\s*", " ", block)
+        for line in joined.splitlines():
+            line = line.split("#", 1)[0].strip()
+            if line.startswith(".venv/bin/rwalk-train") and marker in line:
+                found.append(line.split()[1:])
+    return found
+
+
+def test_the_adaptive_default_command_is_the_same_in_the_readme_and_the_docs():
+    """README's adaptive default and docs/adaptive.md's "Training: one command" train the
+    same run: the teacher, then the GRU student on its teacher's levels."""
+    from rwalk.runners import train
+
+    section = (ROOT / "docs" / "adaptive.md").read_text().split("## Training: one command")[1]
+    (doc,) = _commands(section.split("\n## ", 1)[0], "adaptive_gait")
+    (readme,) = _commands((ROOT / "README.md").read_text(), "adaptive_gait")
+    assert doc == readme
+    args = train.parse_args(doc)
+    assert args.task == "adaptive_gait" and args.run.log_dir == "logs/adaptive"
+    assert args.train.teacher and args.train.student_iterations == 190
+    assert args.train.student_actor == "gru" and args.train.distill_levels
+    assert args.env.gait_action == "schedule" and args.env.bounds.step_length.low == 0.04
