@@ -145,8 +145,12 @@ class ObsPiece(NamedTuple):
 #: Ground samples around each foot for the privileged pieces, in world axes: under the
 #: foot, and 3 cm ahead, behind, left and right of it. Metres.
 HEIGHT_OFFSETS = ((0.0, 0.0), (0.03, 0.0), (-0.03, 0.0), (0.0, 0.03), (0.0, -0.03))
-#: Pieces a critic (or a teacher) may add to the policy's: the world the actor cannot see.
+#: Pieces a critic (or a teacher) adds to the policy's by default: the world the actor
+#: cannot see.
 PRIVILEGED_PIECES = ("physics", "heights")
+#: Every piece only a simulation has: PRIVILEGED_PIECES and those a teacher may read
+#: instead (--teacher-obs); a student and a deployed policy read none of them.
+SIMULATOR_PIECES = (*PRIVILEGED_PIECES, "heights_under_feet")
 
 
 def _rotation(sensors: Tensor) -> tuple[tuple[Tensor, Tensor, Tensor], ...]:
@@ -211,6 +215,10 @@ def _lateral_offset(s: Sources) -> Tensor:
     return (s.sensors[:, OBS_POS.start + 1] - s.episodes.y0).unsqueeze(-1)
 
 
+def _heights_under_feet(s: Sources) -> Tensor:
+    return foot_clearances(s.sensors, s.terrain)[:, :: len(HEIGHT_OFFSETS)].contiguous()
+
+
 #: Where each sample of HEIGHT_OFFSETS lands in the mirrored state (+y <-> -y).
 HEIGHT_MIRROR = (0, 1, 2, 4, 3)
 
@@ -238,6 +246,10 @@ COMMON_PIECES: dict[str, ObsPiece] = {
                         lambda s: foot_clearances(s.sensors, s.terrain),
                         "privileged: each foot's height above the ground under it and 3 cm "
                         "around it (m)", mirror=mirrors.per_leg_with_samples(HEIGHT_MIRROR)),
+    "heights_under_feet": ObsPiece(4, _heights_under_feet,
+                                   "privileged: each foot's height above the ground under it "
+                                   "(m; heights' first sample)",
+                                   mirror=mirrors.per_leg_with_samples((0,))),
 }  # fmt: skip
 
 

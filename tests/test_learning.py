@@ -110,6 +110,24 @@ def test_one_command_trains_the_teacher_then_its_student(tmp_path, capsys):
     assert play.play(["--checkpoint", str(folder / "student" / "model_2.pt"), *PLAY])
 
 
+def test_a_teacher_may_read_only_the_ground_under_its_feet(tmp_path):
+    folder = tmp_path / "run"
+    train.main([*TINY, "--teacher", "--teacher-obs", "physics", "heights_under_feet",
+                "--max-iterations", "2", "--student-iterations", "2", "--student-actor", "mlp",
+                "--log-dir", str(folder)])  # fmt: skip
+    teacher = json.loads((folder / "config.json").read_text())["train"]
+    assert teacher["policy_obs"][-2:] == ["physics", "heights_under_feet"]
+    assert teacher["critic_obs"] == teacher["policy_obs"]  # the critic reads what it reads
+    saved = load_checkpoint(folder / "model_1.pt")
+    for model in ("actor_state_dict", "critic_state_dict"):  # 68 + physics 9 + 4 heights
+        assert saved[model]["mlp.0.weight"].shape[1] == 65 + 2 + 1 + 9 + 4
+    student = json.loads((folder / "student" / "config.json").read_text())["train"]
+    assert student["policy_obs"] == teacher["policy_obs"][:-2]  # blind
+    assert student["teacher_obs"] == ["physics", "heights"]  # (the default: it is no teacher)
+    distilled = load_checkpoint(folder / "student" / "model_1.pt")
+    assert distilled["student_state_dict"]["mlp.0.weight"].shape[1] == 68
+
+
 def test_symmetry_is_the_default_where_rsl_rl_allows_it():
     from rwalk.rl.config import mirrored
     from rwalk.rl.training import rsl_rl_config
@@ -132,6 +150,13 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
         (["--teacher", "--student-actor", "cnn"], "--student-actor must be one of"),
         (["--student-iterations", "5"], "--student-iterations needs --teacher"),
         (["--distill-levels"], "--distill-levels needs --distill or --student-iterations"),
+        (["--teacher-obs", "physics"], "--teacher-obs physics needs --teacher"),
+        (
+            ["--teacher", "--teacher-obs", "sensors"],
+            "--teacher-obs sensors: privileged pieces from physics, heights, "
+            "heights_under_feet, each once",
+        ),
+        (["--teacher", "--teacher-obs", "physics", "physics"], "--teacher-obs physics physics:"),
         (["--symmetry", "--actor", "gru"], "--symmetry needs --actor mlp"),
         (["--symmetry", "--distill", "x.pt"], "--symmetry and --distill do not go together"),
         (["--teacher", "--distill", "x.pt"], "--teacher and --distill do not go together"),

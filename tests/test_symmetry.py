@@ -36,7 +36,8 @@ def test_the_model_is_symmetric_about_its_xz_plane():
     assert torso.ipos[1] == 0.0 and torso.pos[1] == 0.0
 
 
-PIECES = ("sensors", "phase", "lateral_offset", "command", "cycle_speed", "physics", "heights")
+PIECES = ("sensors", "phase", "lateral_offset", "command", "cycle_speed", "physics", "heights",
+          "heights_under_feet")  # fmt: skip
 
 
 @pytest.mark.parametrize("name", [*PIECES, "gait"])
@@ -104,7 +105,7 @@ def test_a_simulated_mirrored_state_gives_the_mirrored_observation():
     _mirrored_state(core, twin)
     # Exact where the arithmetic is sign-symmetric: positions, orientation, velocities,
     # joints, feet, contacts, drift, and the ground under the feet.
-    for name in ("sensors", "lateral_offset", "heights"):
+    for name in ("sensors", "lateral_offset", "heights", "heights_under_feet"):
         want = apply(core.observations.mirror(name), core.piece(name))
         assert torch.equal(twin.piece(name), want), name
     # The gait's sin, cos half a cycle on: the same up to rounding of exactmath's sin, cos.

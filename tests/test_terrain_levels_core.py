@@ -100,6 +100,8 @@ def test_heights_piece_is_each_foot_above_the_ground_around_it():
             for s, (dx, dy) in enumerate(((0, 0), (0.03, 0), (-0.03, 0), (0, 0.03), (0, -0.03))):
                 ground = float(c.terrain.heights_at(torch.tensor(x + dx), torch.tensor(y + dy)))
                 assert float(heights[i, leg, s]) == pytest.approx(z - ground, abs=1e-9)
+            # the teacher's lighter piece (--teacher-obs heights_under_feet): under it only
+            assert float(c.piece("heights_under_feet")[i, leg]) == float(heights[i, leg, 0])
     # on the flat pad the ground is at 0 under every sample: all five agree
     assert torch.allclose(heights, heights[..., :1].expand_as(heights), atol=1e-12)
 

@@ -25,7 +25,7 @@ from tyro.conf import OmitArgPrefixes
 
 from rwalk.config import MAX_ENVS, MAX_THREADS, EnvConfig
 from rwalk.levels import KNOWN_KINDS
-from rwalk.observations import PRIVILEGED_PIECES, piece_catalog
+from rwalk.observations import PRIVILEGED_PIECES, SIMULATOR_PIECES, piece_catalog
 from rwalk.presets import SETTLE_POOL_FRACTION, training_env
 from rwalk.randomization import PHYSICS_RANGES
 from rwalk.rewards import Shaping
@@ -176,8 +176,13 @@ class TrainConfig:
     rnn_hidden_dim: int = 128
     """--actor gru/lstm: units of the recurrent layer"""
     teacher: bool = False
-    """train a teacher: the actor also reads the privileged pieces (the drawn physics, the
-    ground around the feet), which only a simulation has; distil it with --distill"""
+    """train a teacher: the actor also reads the privileged pieces (--teacher-obs: the drawn
+    physics, the ground around the feet), which only a simulation has; distil it with
+    --distill"""
+    teacher_obs: tuple[str, ...] = PRIVILEGED_PIECES
+    """--teacher: the privileged pieces its actor (and its critic) add to the policy's:
+    physics (the drawn physics), heights (each foot's height over the ground under it and
+    3 cm around it), heights_under_feet (under it only)"""
     distill: str = ""
     """train a blind student against this frozen teacher checkpoint, or the newest in this
     run folder (of an rwalk-train --teacher run), with rsl-rl's Distillation: the student
@@ -309,6 +314,13 @@ class TrainConfig:
         if self.warm_start and self.distill:
             raise ValueError("--warm-start and --distill do not go together: a distilled "
                              "student learns from its teacher, from scratch")  # fmt: skip
+        obs = self.teacher_obs
+        if not obs or not set(obs) <= set(SIMULATOR_PIECES) or len(set(obs)) != len(obs):
+            raise ValueError(f"{show_flag('teacher_obs', obs)}: privileged pieces from "
+                             f"{', '.join(SIMULATOR_PIECES)}, each once")  # fmt: skip
+        if obs != PRIVILEGED_PIECES and not self.teacher:
+            raise ValueError(f"{show_flag('teacher_obs', obs)} needs --teacher: they are what "
+                             "a teacher's actor reads")  # fmt: skip
         if self.teacher and self.distill:
             raise ValueError("--teacher and --distill do not go together: a teacher is "
                              "trained with PPO, then distilled into a student")  # fmt: skip
@@ -530,10 +542,11 @@ def observation_groups(task, env: EnvConfig, train: TrainConfig | None = None
     The policy reads ``train.policy_obs``, else the spec observation and the task's
     extra pieces (on a terrain-levels map its observation counts the torso's x, y from
     the episode's start: where it is would tell its level; the piece ``command`` only
-    when the envs draw commands); a teacher's (``train.teacher``) also reads the
-    privileged pieces. The critic reads ``train.critic_obs``, else the policy's pieces
-    plus the privileged ones (the drawn physics, the ground around the feet) when the
-    world varies (``EnvConfig.varies``) or the actor is a teacher.
+    when the envs draw commands); a teacher's (``train.teacher``) also reads its
+    privileged pieces (``train.teacher_obs``). The critic reads ``train.critic_obs``, else
+    the policy's pieces plus the privileged ones (PRIVILEGED_PIECES: the drawn physics,
+    the ground around the feet) when the world varies (``EnvConfig.varies``), a
+    teacher's its own.
 
     Args:
         task: the task (class or instance) whose pieces the groups are.
@@ -548,7 +561,7 @@ def observation_groups(task, env: EnvConfig, train: TrainConfig | None = None
         observation = "observation" if env.terrain_levels is None else "observation_from_start"
         extras = [name for name in task.extras_for(env) if name != "command" or env.command_range]
         policy_obs = (observation, *extras)
-    privileged = PRIVILEGED_PIECES if env.varies or train.teacher else ()
+    privileged = train.teacher_obs if train.teacher else PRIVILEGED_PIECES if env.varies else ()
     if train.teacher:
         policy_obs = (*policy_obs, *(name for name in privileged if name not in policy_obs))
     critic = train.critic_obs or (*policy_obs, *(n for n in privileged if n not in policy_obs))
@@ -632,9 +645,10 @@ def student_training(teacher: Training) -> Training:
     LOG_DIR's teacher into a --student-actor model in LOG_DIR/student for
     --student-iterations iterations, in the teacher's world, blind (the teacher's policy
     pieces but the privileged ones), with the teacher's PPO settings and --overwrite."""
-    blind = tuple(name for name in teacher.train.policy_obs if name not in PRIVILEGED_PIECES)
+    blind = tuple(name for name in teacher.train.policy_obs if name not in SIMULATOR_PIECES)
     train = dataclasses.replace(
-        teacher.train, teacher=False, distill=teacher.run.log_dir, warm_start="", policy_obs=blind,
+        teacher.train, teacher=False, teacher_obs=PRIVILEGED_PIECES, distill=teacher.run.log_dir,
+        warm_start="", policy_obs=blind,
         actor=teacher.train.student_actor, student_iterations=0, symmetry=False, critic_obs=(),
         late_iterations=0, flat_kinds=(), flat_from=0, flat_until=None,
         **dict.fromkeys(LATE_VALUES),
