@@ -180,17 +180,19 @@ def _rotate(rotation, local: Tensor, origin: Tensor | None = None) -> list[Tenso
     return out
 
 
-def foot_clearances(sensors: Tensor, terrain: Terrain) -> Tensor:
-    """Height of each foot above the ground at HEIGHT_OFFSETS around it, foot-major.
+def foot_clearances(sensors: Tensor, terrain: Terrain,
+                    samples: Sequence[tuple[float, float]] = HEIGHT_OFFSETS) -> Tensor:  # fmt: skip
+    """Height of each foot above the ground at ``samples`` (x, y offsets, world axes)
+    around it, foot-major.
 
     The feet's world positions come from the torso's position and orientation and the
     feet's positions in the torso frame (the observation's sensors), with elementwise
-    products and sums only. Shape: (N, 65) -> (N, 4 * len(HEIGHT_OFFSETS)) float64. Metres.
+    products and sums only. Shape: (N, 65) -> (N, 4 * len(samples)) float64. Metres.
     """
     n = sensors.shape[0]
     world = _rotate(_rotation(sensors), sensors[:, OBS_FOOT_POS].view(n, 4, 3),
                     sensors[:, OBS_POS])  # fmt: skip
-    offsets = torch.tensor(HEIGHT_OFFSETS, dtype=torch.float64)
+    offsets = torch.tensor(samples, dtype=torch.float64)
     ground = terrain.heights_at(
         world[0][..., None] + offsets[:, 0], world[1][..., None] + offsets[:, 1]
     )
@@ -216,7 +218,7 @@ def _lateral_offset(s: Sources) -> Tensor:
 
 
 def _heights_under_feet(s: Sources) -> Tensor:
-    return foot_clearances(s.sensors, s.terrain)[:, :: len(HEIGHT_OFFSETS)].contiguous()
+    return foot_clearances(s.sensors, s.terrain, HEIGHT_OFFSETS[:1])
 
 
 #: Where each sample of HEIGHT_OFFSETS lands in the mirrored state (+y <-> -y).
