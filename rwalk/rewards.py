@@ -96,6 +96,10 @@ class GaitCosts:
     """Per m/s of horizontal world speed of each foot touching the ground, summed over feet."""
     power: float = 1.0
     """Per watt of mechanical servo power, sum over joints of |torque x joint speed|."""
+    power_per_metre_above: float = 0.0
+    """Above this target speed (m/s) a watt is priced per metre walked, as the cost of
+    transport prices it: the power term is scaled by this / |v*| (half its weight at twice
+    this speed); at and below it, per watt. 0: every watt the same at every target."""
     stumble: float = 0.0
     """Per foot touching something in mid swing (MID_SWING), where the swing curve is
     highest: it hit the ground or an obstacle's face (legged_gym's stumble term reads
@@ -109,6 +113,11 @@ class GaitCosts:
                     f"GaitCosts.{name} is the size of a cost and must be >= 0, "
                     f"got {getattr(self, name)!r}"
                 )
+        if self.power_per_metre_above < 0:
+            raise ValueError(
+                f"GaitCosts.power_per_metre_above is a speed in m/s and must be >= 0 (0: off), "
+                f"got {self.power_per_metre_above!r}"
+            )
         if self.clearance_target_per_speed < 0:
             raise ValueError(
                 f"GaitCosts.clearance_target_per_speed is seconds (metres per m/s) and must be "
@@ -187,6 +196,17 @@ def grown_with_speed(floor: float, per_speed: float, target: Tensor | float) -> 
     if isinstance(target, Tensor):
         return torch.clamp(target * per_speed, min=floor)
     return max(floor, target * per_speed)
+
+
+def per_metre_above(speed: float, target: Tensor | float) -> Tensor | float:
+    """speed / max(speed, |v*|) at each target: 1 at and below ``speed``, the price per
+    metre above it (one maximum and one division: the same bits in any batch); 1 where
+    ``speed`` is 0. Shape: (N,) -> (N,)."""
+    if not speed:
+        return 1.0
+    if isinstance(target, Tensor):
+        return speed / torch.clamp(target.abs(), min=speed)
+    return speed / max(speed, abs(target))
 
 
 def kernel_width(shaping: Shaping, target: Tensor | float) -> Tensor | float:
@@ -384,7 +404,8 @@ def cost_terms(costs: GaitCosts, world) -> tuple[RewardTerm, ...]:
     """The terms of ``costs``, each weighted by minus its size, for the tasks of ``world``
     (``rwalk.world.World``: leg geometry, gait controller): swing clearance (each leg's
     swing progress at the sensed substep, from the task's ``sensed_phase``), foot slip and
-    servo power (the last substep's torques, computed with its sensors)."""
+    servo power (the last substep's torques, computed with its sensors; per metre above
+    ``power_per_metre_above``)."""
     radius = world.geometry.foot_radius
     controller = world.controller
     duty = controller.params.duty_factor
@@ -406,7 +427,10 @@ def cost_terms(costs: GaitCosts, world) -> tuple[RewardTerm, ...]:
 
     def power(s: StepState) -> Tensor:
         torque = torch.from_numpy(s.sources.sim.actuator_force)
-        return servo_power(torque, s.sources.sensors[:, OBS_JOINT_VEL])
+        watts = servo_power(torque, s.sources.sensors[:, OBS_JOINT_VEL])
+        if not costs.power_per_metre_above:
+            return watts
+        return watts * per_metre_above(costs.power_per_metre_above, s.v_target)
 
     def stumble(s: StepState) -> Tensor:
         return mid_swing_contacts(s.sources.sensors[:, OBS_CONTACT] > 0.5, swing_progress(s))

@@ -19,6 +19,7 @@ from rwalk.rewards import (
     foot_slip,
     grown_with_speed,
     mid_swing_contacts,
+    per_metre_above,
     servo_power,
 )
 from rwalk.rl.legacy import TrainingEnv
@@ -74,6 +75,15 @@ def test_servo_power_sums_the_absolute_mechanical_power_of_the_joints():
     torque = torch.tensor([[1.0, -2.0, 0.5] + [0.0] * 9], dtype=F64)
     speed = torch.tensor([[3.0, 4.0, -2.0] + [7.0] * 9], dtype=F64)
     assert servo_power(torque, speed).tolist() == [3.0 + 8.0 + 1.0]
+
+
+def test_power_is_priced_per_metre_above_its_speed_by_hand():
+    # 0.1 / max(0.1, |v*|): a watt costs its full price at and below 0.1 m/s (backwards
+    # too), 0.1 / 0.25 = 0.4 of it at 0.25 m/s, half at -0.2 m/s
+    target = torch.tensor([0.05, 0.1, 0.25, -0.2, 0.0], dtype=F64)
+    assert per_metre_above(0.1, target).tolist() == [1.0, 1.0, 0.1 / 0.25, 0.5, 1.0]
+    assert per_metre_above(0.1, 0.25) == 0.1 / 0.25
+    assert per_metre_above(0.0, 9.0) == 1.0  # 0: off, every watt the same
 
 
 def test_foot_velocities_match_mujoco_s_own_site_velocity():
@@ -163,6 +173,26 @@ def test_a_standing_robot_falls_short_by_its_own_command_s_target():
         torch.testing.assert_close(shortfall, mid * target, rtol=0.0, atol=0.002 * 4)
         seen += int(mid.sum())
     assert seen > 0
+
+
+def test_each_env_s_power_is_priced_per_metre_above_the_speed_asked():
+    """With commands of 0.05-0.25 m/s and the full price up to 0.1 m/s, each env's power
+    term is -5 x its watts x 0.1 / max(0.1, its v*), summed by hand as the term adds."""
+    costs = dataclasses.replace(COSTS, power_per_metre_above=0.1)
+    core = _core(costs=costs, command_range=(0.05, 0.25))
+    core.reset()
+    v_target = core.task.v_target.tolist()
+    assert min(v_target) < 0.1 < max(v_target)  # both prices drawn
+    for _ in range(12):
+        result = core.step(torch.zeros(3, 12))
+    sensors = core.obs.numpy()
+    torque = core.sim.actuator_force
+    for i in range(3):
+        power = 0.0
+        for j in range(12):
+            power = power + abs(torque[i, j] * sensors[i, OBS_JOINT_VEL.start + j])
+        price = 0.1 / max(0.1, abs(v_target[i]))
+        assert result.terms["power"][i].item() == -5.0 * (power * price)
 
 
 def test_stumble_is_a_term_only_when_asked_and_counts_the_shuffling_feet():
@@ -322,6 +352,8 @@ def test_bad_schedules_are_refused_naming_the_field_and_value(changes, message):
         ({"clearance_target": 0.0}, "clearance_target"),
         ({"clearance_target": 0.2}, "clearance_target"),
         ({"clearance_target": math.nan}, "clearance_target"),
+        ({"power_per_metre_above": -0.1}, "power_per_metre_above"),
+        ({"power_per_metre_above": math.nan}, "power_per_metre_above"),
         ({"clearance_target_per_speed": -0.1}, "clearance_target_per_speed"),
         ({"clearance_target_per_speed": math.inf}, "clearance_target_per_speed"),
     ],
