@@ -428,8 +428,6 @@ def cost_terms(costs: GaitCosts, world) -> tuple[RewardTerm, ...]:
     def power(s: StepState) -> Tensor:
         torque = torch.from_numpy(s.sources.sim.actuator_force)
         watts = servo_power(torque, s.sources.sensors[:, OBS_JOINT_VEL])
-        if not costs.power_per_metre_above:
-            return watts
         return watts * per_metre_above(costs.power_per_metre_above, s.v_target)
 
     def stumble(s: StepState) -> Tensor:
