@@ -16,7 +16,7 @@ from rwalk.tasks import AdaptiveGaitConfig
 
 TINY = ["--num-envs", "10", "--num-steps-per-env", "4", "--settle-steps", "2",
         "--max-episode-steps", "30", "--hidden-dims", "16", "--save-interval", "1",
-        "--no-export", "--max-iterations", "1"]  # fmt: skip
+        "--no-export", "--max-iterations", "1", "--recipe", "plain"]  # fmt: skip
 QUICK = ["--episodes", "2", "--max-steps", "20", "--settle-steps", "2", "--gait-steps", "55"]
 
 

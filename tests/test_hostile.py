@@ -64,7 +64,8 @@ def run_folder(tmp_path_factory) -> Path:
 
     train.main(["--num-envs", "4", "--num-steps-per-env", "4", "--settle-steps", "2",
                 "--max-episode-steps", "20", "--hidden-dims", "8", "--max-iterations", "2",
-                "--save-interval", "1", "--no-export", "--log-dir", str(folder)])  # fmt: skip
+                "--save-interval", "1", "--no-export", "--recipe", "plain",
+                "--log-dir", str(folder)])  # fmt: skip
     return folder
 
 

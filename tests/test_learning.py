@@ -23,7 +23,7 @@ from rwalk.tensorboard_events import read_scalars
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["--num-envs", "8", "--num-steps-per-env", "8", "--settle-steps", "2",
         "--max-episode-steps", "30", "--hidden-dims", "16", "--save-interval", "1",
-        "--no-export"]  # fmt: skip
+        "--no-export", "--recipe", "plain"]  # fmt: skip
 PLAY = ["--episodes", "2", "--max-steps", "10", "--settle-steps", "2"]
 
 
@@ -108,6 +108,21 @@ def test_one_command_trains_the_teacher_then_its_student(tmp_path, capsys):
     saved = load_checkpoint(folder / "student" / "model_2.pt")
     assert saved["student_state_dict"]["mlp.0.weight"].shape[1] == 68  # blind
     assert play.play(["--checkpoint", str(folder / "student" / "model_2.pt"), *PLAY])
+
+
+def test_the_default_recipe_trains_a_teacher_then_its_blind_gru_student(tmp_path):
+    folder = tmp_path / "run"
+    precise = [flag for flag in TINY if flag not in ("--recipe", "plain")]
+    train.main([*precise, "--max-iterations", "2", "--student-iterations", "2",
+                "--log-dir", str(folder)])  # fmt: skip
+    teacher = json.loads((folder / "config.json").read_text())
+    assert teacher["preset"]["recipe"] == "precise" and teacher["train"]["teacher"]
+    assert teacher["env"]["costs"]["power"] == 2.0 and teacher["env"]["shaping"]["tracking"] == 300
+    assert teacher["env"]["terrain_levels"]["kinds"][0] == "flat"
+    student = json.loads((folder / "student" / "config.json").read_text())["train"]
+    assert student["actor"] == "gru" and student["distill_levels"]
+    assert student["policy_obs"] == teacher["train"]["policy_obs"][:-2]  # blind
+    assert [it for it, _ in checkpoint_files(folder / "student")] == [0, 1]
 
 
 def test_a_teacher_may_read_only_the_ground_under_its_feet(tmp_path):

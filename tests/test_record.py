@@ -26,6 +26,8 @@ from rwalk.tasks import AdaptiveGaitConfig
 ROOT = Path(__file__).resolve().parents[1]
 RECORDS = Path(__file__).parent / "data" / "records"
 SMALL = ["--num-envs", "6", "--settle-steps", "4", "--max-episode-steps", "40", "--threads", "1"]
+#: SMALL with the plain training (PPO alone, the late kernel): the default before --recipe.
+PLAIN = [*SMALL, "--recipe", "plain"]
 #: The four kinds of run whose records must rebuild their envs bit for bit.
 KINDS = {
     "default": [],
@@ -73,11 +75,13 @@ def test_the_env_built_from_the_record_is_the_env_the_run_trained_in(name, tmp_p
 
 
 def test_the_command_line_builds_what_the_older_flags_built():
-    # Bits unchanged: the default training and its --no-robust world, as the schema-1
-    # flags (and presets) built them before the configs became the record; two changes
-    # since: the default training's last 100 iterations draw the model's physics, and its
-    # last 50 train with the speed kernel (its terms at weight 0 before: exact zeros).
-    for flags, old, stage, late in (([], {}, 100, 50), (["--no-robust"], {"robust": False}, 0, 0)):
+    # Bits unchanged: the plain training (the default before --recipe) and its --no-robust
+    # world, as the schema-1 flags (and presets) built them before the configs became the
+    # record; two changes since: the plain training's last 100 iterations draw the model's
+    # physics, and its last 50 train with the speed kernel (its terms at weight 0 before:
+    # exact zeros).
+    plain, no_robust = ["--recipe", "plain"], ["--no-robust"]
+    for flags, old, stage, late in ((plain, {}, 100, 50), (no_robust, {"robust": False}, 0, 0)):
         new = train.parse_args([*SMALL, *flags])
         args = dataclasses.replace(TrainArgs(), num_envs=6, settle_steps=4, max_episode_steps=40,
                                    threads=1, **old)  # fmt: skip
@@ -95,6 +99,66 @@ def test_the_command_line_builds_what_the_older_flags_built():
         assert trace(unshaped, 6, 0) == trace(legacy, 6, 0)
         # the kernel at weight 0 adds its terms and not a bit to the reward
         assert trace(new.env_config(), 6, 0, terms=False) == trace(legacy, 6, 0, terms=False)
+
+
+#: The residual task's recipe (ResidualWalk.recipe) as the flags docs/learning.md gives.
+RECIPE_FLAGS = [
+    "--recipe", "plain", "--costs", "--env.costs.power", "2", "--env.shaping.tracking", "300",
+    "--env.shaping.sigma", "0.02", "--terrain-kinds", "flat", "rough", "slopes", "steps",
+    "stones", "--max-iterations", "500", "--late-iterations", "0", "--teacher", "--teacher-obs",
+    "physics", "heights_under_feet", "--student-iterations", "190", "--student-actor", "gru",
+    "--distill-levels",
+]  # fmt: skip
+
+
+def test_the_default_training_is_the_recipe_that_its_flags_give():
+    default, given = train.parse_args(SMALL), train.parse_args([*SMALL, *RECIPE_FLAGS])
+    assert default.preset.recipe == "precise" and given.preset.recipe == "plain"
+    assert default.env == given.env
+    assert (default.train, default.run) == (given.train, given.run)
+    assert default.train.nominal_physics_iterations == 167  # a third of 500, as before
+
+
+@pytest.mark.parametrize("flags", [["--no-teacher"], ["--distill", "logs/teacher"]])
+def test_a_run_without_a_teacher_keeps_the_rest_of_the_recipe(flags):
+    training = train.parse_args([*SMALL, *flags])
+    assert not training.train.teacher and training.train.student_iterations == 0
+    assert not training.train.distill_levels and training.train.teacher_obs == (
+        "physics",
+        "heights",
+    )
+    assert training.env.costs.power == 2.0 and training.env.shaping.tracking == 300.0
+    assert training.run.max_iterations == 500 and training.train.late_iterations == 0
+
+
+@pytest.mark.parametrize(
+    "flags", [["--recipe", "plain"], ["--no-robust"], ["--task", "adaptive_gait"]]
+)
+def test_only_the_robust_residual_task_has_a_recipe(flags):
+    training = train.parse_args([*SMALL, *flags])
+    assert not training.train.teacher and training.run.max_iterations == 300
+    assert training.env.costs is None
+    assert training.preset.own_recipe is None
+
+
+def test_a_recipe_not_known_and_a_recipe_torchrl_does_not_train_are_refused(capsys):
+    with pytest.raises(SystemExit):
+        train.parse_args(["--recipe", "fast"])
+    assert "--recipe" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        train_torchrl.parse_args(["--recipe", "precise"])
+    error = capsys.readouterr().err
+    assert "--recipe precise trains a teacher" in error and "--recipe plain" in error
+    assert train_torchrl.parse_args([]).preset.recipe == "plain"
+
+
+def test_a_record_from_before_the_recipe_reads_as_the_plain_training(tmp_path):
+    training = train.parse_args(PLAIN)
+    write_record(tmp_path / "config.json", training)
+    saved = json.loads((tmp_path / "config.json").read_text())
+    del saved["preset"]["recipe"]
+    (tmp_path / "config.json").write_text(json.dumps(saved))
+    assert read_record(tmp_path / "config.json") == training
 
 
 def test_a_student_is_blind_and_trains_in_its_teachers_world():
@@ -134,7 +198,7 @@ def test_a_record_written_before_a_field_existed_reads_that_field_as_its_default
     assert record == read_record(RECORDS / "v1_rwalk_train.json", "rsl_rl", Training)
     # Also where the default has changed since: the default training ends on a stage at
     # the model's physics, a record of it written before the field trained without one.
-    data = record_of(train.parse_args(SMALL))
+    data = record_of(train.parse_args(PLAIN))
     assert data["train"].pop("nominal_physics_iterations") == 100
     assert data["train"].pop("nominal_physics_entropy_coef") is None
     # and its last 50 iterations train with the speed kernel: a record written before the
@@ -167,7 +231,7 @@ def test_the_stage_at_the_models_physics_is_the_tasks_own_and_written_out(
     # for friction (docs/learning.md); the adaptive task's and a world without physics
     # randomisation have none, and no stage has no entropy bonus of its own; the record
     # keeps the number, not the rule.
-    training = train.parse_args([*SMALL, *flags])
+    training = train.parse_args([*PLAIN, *flags])
     assert training.train.nominal_physics_iterations == stage
     assert training.train.nominal_physics_keep == (("friction",) if stage else ())
     assert training.train.nominal_physics_entropy_coef == entropy
@@ -194,7 +258,7 @@ def test_the_late_speed_kernel_is_the_residual_tasks_own_and_written_out(
     # kernel at 200 (docs/learning.md); its terms sit at weight 0 before the stage. The
     # late flags replace the stage's values; the adaptive task, a world without physics
     # randomisation and a run too short for a stage have none. The record keeps the numbers.
-    training = train.parse_args([*SMALL, *flags])
+    training = train.parse_args([*PLAIN, *flags])
     assert training.train.late_iterations == late
     assert (training.train.late_tracking, training.train.late_sigma) == (tracking, sigma)
     if "adaptive_gait" not in flags:
@@ -269,7 +333,7 @@ def test_resume_refuses_a_contradicting_nested_flag_naming_both_values(tmp_path,
     folder = tmp_path / "run"
     tiny = ["--num-envs", "4", "--num-steps-per-env", "4", "--settle-steps", "2",
             "--max-episode-steps", "20", "--hidden-dims", "8", "--save-interval", "1",
-            "--no-export", "--log-dir", str(folder)]  # fmt: skip
+            "--no-export", "--recipe", "plain", "--log-dir", str(folder)]  # fmt: skip
     train.main([*tiny, "--env.costs.clearance", "3000", "--max-iterations", "1"])
     saved = (folder / "config.json").read_text()
     assert json.loads(saved)["env"]["costs"]["clearance"] == 3000.0
@@ -291,7 +355,7 @@ def test_resume_goes_on_in_the_runs_own_folder_with_its_own_seed(tmp_path, monke
     folder = tmp_path / "runs" / "mine"
     tiny = ["--num-envs", "4", "--num-steps-per-env", "4", "--settle-steps", "2",
             "--max-episode-steps", "20", "--hidden-dims", "8", "--save-interval", "1",
-            "--no-export"]  # fmt: skip
+            "--no-export", "--recipe", "plain"]  # fmt: skip
     train.main([*tiny, "--seed", "3", "--log-dir", str(folder), "--max-iterations", "1"])
     for resume in (folder, folder / "model_0.pt"):
         training = train.parse_args(["--resume", str(resume), "--max-iterations", "2"])
@@ -332,7 +396,7 @@ def test_a_record_lists_the_machines_its_run_trained_on(tmp_path, monkeypatch, c
     folder = tmp_path / "run"
     tiny = ["--num-envs", "4", "--num-steps-per-env", "4", "--settle-steps", "2",
             "--max-episode-steps", "20", "--hidden-dims", "8", "--save-interval", "1",
-            "--no-export", "--log-dir", str(folder)]  # fmt: skip
+            "--no-export", "--recipe", "plain", "--log-dir", str(folder)]  # fmt: skip
     train.main([*tiny, "--max-iterations", "1"])
     train.main([*tiny, "--resume", str(folder), "--max-iterations", "2"])  # the same machine
     assert json.loads((folder / "config.json").read_text())["machines"] == [describe()]

@@ -12,7 +12,7 @@ from rwalk.runners import play, train
 
 TINY = ["--num-envs", "4", "--num-steps-per-env", "4", "--settle-steps", "2",
         "--max-episode-steps", "20", "--hidden-dims", "8", "--save-interval", "1",
-        "--no-export"]  # fmt: skip
+        "--no-export", "--recipe", "plain"]  # fmt: skip
 
 
 @pytest.fixture(scope="module")

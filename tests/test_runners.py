@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TINY_TRAIN = [
     "--num-envs", "16", "--num-steps-per-env", "4", "--save-interval", "1",
     "--settle-steps", "2", "--settle-pool-fraction", "0.5", "--max-episode-steps", "30",
-    "--hidden-dims", "16", "16",
+    "--hidden-dims", "16", "16", "--recipe", "plain",
 ]  # fmt: skip
 
 

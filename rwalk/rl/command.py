@@ -1,7 +1,8 @@
 """A trainer's command line: its training dataclass, every nested field a flag.
 
-The preset's flags (--task, --robust/--no-robust, --costs, --settle-pool-fraction)
-and --num-envs choose the defaults (``Preset.env``); with --resume the defaults are
+The preset's flags (--task, --robust/--no-robust, --costs, --settle-pool-fraction,
+--recipe) and --num-envs choose the defaults (``Preset.env``, and the task's recipe's
+train fields and --max-iterations: ``Preset.own_recipe``); with --resume the defaults are
 the resumed run's own record, so that a flag given on --resume that differs from
 the run's is one the user typed (``rwalk.rl.config.resume_conflict``), and the run
 goes on in its own folder with its own seed unless --log-dir or --seed says
@@ -106,12 +107,26 @@ def defaults(cls: type, argv: list[str], read_record) -> Any:
             values[f.name] = given if f.type == "bool" or isinstance(given, bool) else (
                 float(given) if f.type == "float" else given)  # fmt: skip
     try:
-        preset = Preset(**values)
-        return cls(env=with_parts_named(preset.env(num_envs), argv, "--env."), preset=preset,
-                   num_envs=num_envs, run=run)  # fmt: skip
+        return _from_preset(cls, dataclasses.replace(own["preset"].default_factory(), **values),
+                            argv, num_envs, run)  # fmt: skip
     except (ValueError, TypeError):
-        preset = Preset()
-        return cls(env=preset.env(base), preset=preset, num_envs=base, run=run)
+        return _from_preset(cls, own["preset"].default_factory(), [], base, run)
+
+
+def _from_preset(cls: type, preset: Preset, argv: list[str], num_envs: int, run: Any) -> Any:
+    """The training ``cls`` that ``preset`` starts for ``num_envs`` envs: its env, and where
+    it trains with its task's recipe (``Preset.own_recipe``), the recipe's train fields
+    (without its teacher and student where ``argv`` says --no-teacher or --distill) and
+    --max-iterations."""
+    env = with_parts_named(preset.env(num_envs), argv, "--env.")
+    recipe = preset.own_recipe
+    if recipe is None:
+        return cls(env=env, preset=preset, num_envs=num_envs, run=run)
+    teacher = peek(argv, "teacher") is not False and not peek(argv, "distill")
+    plain = next(f for f in dataclasses.fields(cls) if f.name == "train").default_factory()
+    train = dataclasses.replace(plain, **recipe.train_fields(teacher=teacher))
+    run = dataclasses.replace(run, max_iterations=recipe.max_iterations)
+    return cls(env=env, preset=preset, num_envs=num_envs, train=train, run=run)
 
 
 def parse_training(cls: type, argv: list[str] | None, prog: str, description: str | None,

@@ -427,6 +427,10 @@ def symmetry_refusal(train) -> str | None:
             f"models), got --actor {train.actor}")  # fmt: skip
 
 
+#: How rwalk-train trains a task (Preset.recipe).
+RECIPES = ("precise", "plain")
+
+
 @dataclass(frozen=True)
 class Preset:
     """Where a training's configs start from: its task and world
@@ -443,15 +447,31 @@ class Preset:
     the ground, feet slipping, servo power; rwalk.rewards.GaitCosts)"""
     settle_pool_fraction: float = SETTLE_POOL_FRACTION
     """settled starts kept ready, as a fraction of --num-envs (--env.settle-pool: a count)"""
+    recipe: str = "precise"
+    """how the task trains in the robust world: precise (residual_walk: a teacher that reads
+    the drawn physics and the ground under its feet, then its blind GRU student, with the
+    gait costs and the speed kernel: Task.recipe, docs/learning.md; each of its values a
+    flag that may be set) or plain (PPO alone, the late kernel); a task without a recipe
+    (adaptive_gait) and --no-robust train plain"""
 
     def __post_init__(self) -> None:
         get_task(self.task)  # ValueError listing the known tasks
         require_in(self, "settle_pool_fraction", 0.0, 1.0, low_open=True)
+        require_choice(self, "recipe", RECIPES)
+
+    @property
+    def own_recipe(self):
+        """The task's ``Recipe`` where this preset trains with it, else None."""
+        precise = self.recipe == "precise" and self.robust
+        return get_task(self.task).recipe if precise else None
 
     def env(self, num_envs: int) -> EnvConfig:
-        """The task's training env for ``num_envs`` envs in this preset's world."""
-        return training_env(self.task, num_envs=num_envs, robust=self.robust, costs=self.costs,
-                            settle_pool_fraction=self.settle_pool_fraction)  # fmt: skip
+        """The task's training env for ``num_envs`` envs in this preset's world (and its
+        recipe's, ``own_recipe``)."""
+        env = training_env(self.task, num_envs=num_envs, robust=self.robust, costs=self.costs,
+                           settle_pool_fraction=self.settle_pool_fraction)  # fmt: skip
+        recipe = self.own_recipe
+        return env if recipe is None else recipe.env(env)
 
 
 Env = TypeVar("Env", bound=EnvConfig)

@@ -129,9 +129,9 @@ class TrainingEnv:
     def config(self, threads: int = 0) -> EnvConfig:
         """The env config these flags made: the preset's env with the flags' fields set
         (the adaptive task's options where the task takes them: ``Task.configure``)."""
-        env = Preset(self.task, self.robust, self.costs, self.settle_pool_fraction).env(
-            self.num_envs
-        )
+        env = Preset(
+            self.task, self.robust, self.costs, self.settle_pool_fraction, recipe="plain"
+        ).env(self.num_envs)
         changes: dict[str, Any] = {
             "settle_steps": self.settle_steps, "settle_reuse": self.settle_reuse,
             "max_episode_steps": self.max_episode_steps, "num_threads": threads,
@@ -196,7 +196,7 @@ def from_flags(args) -> Any:
     """
     kind = next(training for flags, training in FLAG_FORMS.values() if isinstance(args, flags))
     env = dataclasses.replace(args.env.config(), num_threads=0)  # threads: the run's
-    preset = Preset(args.task, args.robust, args.costs, args.settle_pool_fraction)
+    preset = Preset(args.task, args.robust, args.costs, args.settle_pool_fraction, recipe="plain")
     if kind is not Training:
         return kind(env=env, preset=preset, num_envs=args.num_envs, train=args.train,
                     run=args.run)  # fmt: skip

@@ -178,6 +178,8 @@ def read_record(path: Path, trainer: str = DEFAULT_TRAINER, cls: type = Training
         body = {k: v for k, v in saved.items() if k not in ("schema", "trainer", "machines")}
         if cls is Training and isinstance(body.get("train"), dict):
             body["train"] = PREDATING | body["train"]
+        if isinstance(body.get("preset"), dict):  # a run before --recipe trained plain
+            body["preset"] = {"recipe": "plain"} | body["preset"]
         return decode_training(cls, body)
     except ConfigError:
         raise

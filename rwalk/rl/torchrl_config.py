@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 from tyro.conf import OmitArgPrefixes
 
-from rwalk.rl.config import Env, RunSettings, TrainingBase
+from rwalk.rl.config import Env, Preset, RunSettings, TrainingBase
 from rwalk.validation import require_at_least, require_in, require_positive
 
 BACKENDS = ("process", "ray", "distributed")
@@ -97,6 +97,8 @@ class TorchRLTraining(TrainingBase[Env]):
 
     num_envs: int = 256
     """parallel envs (with collectors: per worker)"""
+    preset: OmitArgPrefixes[Preset] = field(default_factory=lambda: Preset(recipe="plain"))
+    """The task and world the configs started from (PPO alone: --recipe plain)."""
     train: OmitArgPrefixes[TorchRLConfig] = field(default_factory=TorchRLConfig)
     """TorchRL's PPO, models and collectors."""
     run: OmitArgPrefixes[RunSettings] = field(
@@ -106,4 +108,8 @@ class TorchRLTraining(TrainingBase[Env]):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.preset.own_recipe is not None:
+            raise ValueError(f"--recipe {self.preset.recipe} trains a teacher and its "
+                             f"student (rwalk-train); rwalk-train-torchrl trains --recipe "
+                             f"plain")  # fmt: skip
         self.train.check_batch(self.num_envs)  # a minibatch holds a frame

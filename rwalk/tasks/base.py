@@ -23,13 +23,52 @@ from torch import Tensor
 
 from rwalk import rng
 from rwalk.config import EnvConfig, convert
+from rwalk.levels import TerrainLevels
 from rwalk.mirror import Mirror
 from rwalk.observations import COMMON_PIECES, PRIVILEGED_PIECES, ObsPiece, piece_catalog
-from rwalk.rewards import RewardTerm, cost_terms, shaping_terms, spec_terms
+from rwalk.rewards import GaitCosts, RewardTerm, Shaping, cost_terms, shaping_terms, spec_terms
 from rwalk.world import World
 
 #: Random stream of the per-episode velocity commands (see ``rwalk.rng``).
 COMMAND_STREAM = "command"
+
+
+@dataclasses.dataclass(frozen=True)
+class Recipe:
+    """How rwalk-train trains a task by default where its world is robust (``--recipe
+    precise``): what it changes from the plain defaults, each a flag's value; the run's
+    record holds them resolved, as it holds every flag (docs/learning.md)."""
+
+    costs: dict[str, float]
+    """The gait costs in the reward: ``GaitCosts`` fields that differ from its defaults
+    (--costs --env.costs.power 2: ``{"power": 2.0}``)."""
+    shaping: dict[str, float]
+    """The training reward's shaping from the first iteration: ``Shaping`` fields
+    (--env.shaping.tracking 300: ``{"tracking": 300.0}``); empty: none."""
+    terrain_kinds: tuple[str, ...]
+    """The terrain-levels map's kinds of tile (--terrain-kinds)."""
+    train: dict[str, Any]
+    """``TrainConfig`` fields (--teacher: ``{"teacher": True}``)."""
+    max_iterations: int
+    """--max-iterations (the teacher's, where ``train`` trains one)."""
+
+    #: ``train``'s fields that make a teacher and its student: left out where the command
+    #: line trains neither (--no-teacher, --distill), so that those flags work alone.
+    TEACHER_FIELDS = ("teacher", "teacher_obs", "student_iterations", "student_actor",
+                      "distill_levels")  # fmt: skip
+
+    def env(self, env: EnvConfig) -> EnvConfig:
+        """``env`` (a robust training's) as this recipe trains it: its gait costs (over
+        --costs' defaults), shaping and terrain kinds."""
+        costs = dataclasses.replace(env.costs or GaitCosts(), **self.costs)
+        shaping = Shaping(**self.shaping) if self.shaping else env.shaping
+        levels = dataclasses.replace(env.terrain_levels or TerrainLevels(),
+                                     kinds=self.terrain_kinds)  # fmt: skip
+        return dataclasses.replace(env, costs=costs, shaping=shaping, terrain_levels=levels)
+
+    def train_fields(self, *, teacher: bool = True) -> dict[str, Any]:
+        """``train``, without the teacher's and student's fields where not ``teacher``."""
+        return {k: v for k, v in self.train.items() if teacher or k not in self.TEACHER_FIELDS}
 
 
 class Task:
@@ -69,6 +108,9 @@ class Task:
     """rwalk-train's default --late-iterations for this task where the physics is
     randomised: (its share of --max-iterations, the stage's values: ``{"late_tracking":
     200.0}`` is --late-tracking 200); None: no such stage (docs/learning.md)."""
+    recipe: ClassVar[Recipe | None] = None
+    """rwalk-train's training of this task where its world is robust, beyond the plain
+    defaults (``--recipe precise``); None: the plain defaults."""
     action_fields: ClassVar[tuple[str, ...]] = ()
     """Config fields that say what the action's values mean beyond its layout: a policy
     acts only in an env whose are its training's (``rwalk.evaluation.load_policy``)."""

@@ -14,7 +14,7 @@ from torch import Tensor
 from rwalk import mirror
 from rwalk.constants import ACTION_DIM
 from rwalk.mirror import Mirror
-from rwalk.tasks.base import Task
+from rwalk.tasks.base import Recipe, Task
 
 
 class ResidualWalk(Task):
@@ -27,6 +27,17 @@ class ResidualWalk(Task):
     nominal_physics_share = 1 / 3  # the last 100 of the default 300 (docs/learning.md)
     # the last 50 of the default 300 with the speed kernel at 200 (docs/learning.md)
     late_stage = (1 / 6, {"late_tracking": 200.0})
+    # the adaptive default's recipe on this task: a teacher that reads the drawn physics
+    # and the ground under its feet, distilled into a blind GRU student, the gait costs
+    # with power x2, the speed kernel from the first iteration (docs/learning.md)
+    recipe = Recipe(
+        costs={"power": 2.0}, shaping={"tracking": 300.0, "sigma": 0.02},
+        terrain_kinds=("flat", "rough", "slopes", "steps", "stones"),
+        train={"teacher": True, "teacher_obs": ("physics", "heights_under_feet"),
+               "student_iterations": 190, "student_actor": "gru", "distill_levels": True,
+               "late_iterations": 0},
+        max_iterations=500,
+    )  # fmt: skip
 
     def __init__(self, config, world, num_envs: int) -> None:
         super().__init__(config, world, num_envs)
