@@ -256,8 +256,8 @@ def test_the_readme_deploy_snippet_walks_a_simulated_robot(exports):
     """README's Deploy example, as written there (2 periods of an exported policy)."""
     section = (ROOT / "README.md").read_text().split("## Deploy", 1)[1].split("\n## ", 1)[0]
     (code,) = re.findall(r"```python\n(.*?)```", section, re.DOTALL)
-    assert '"logs/rwalk/exported"' in code and "range(250)" in code
-    code = code.replace('"logs/rwalk/exported"', repr(str(exports / "gru")))
+    assert '"logs/rwalk/student/exported"' in code and "range(250)" in code
+    code = code.replace('"logs/rwalk/student/exported"', repr(str(exports / "gru")))
     code = code.replace("range(250)", "range(2)")
     namespace: dict = {}
     exec(compile(code, "README.md deploy", "exec"), namespace)

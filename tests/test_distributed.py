@@ -169,6 +169,21 @@ def test_a_warm_start_starts_every_rank_from_rank_0s_file(two_ranks, tmp_path):
     assert rank0 != hashes(two_ranks[0] / "hashes", 0)[:1]  # not a fresh start's update
 
 
+def test_the_default_recipe_trains_its_teacher_then_its_student_over_two_ranks(tmp_path):
+    precise = [flag for flag in TINY if flag not in ("--recipe", "plain")]
+    run_dir = tmp_path / "run"
+    code, out = run(
+        [*TORCHRUN, "--standalone", "--nproc-per-node", "2", "-m", "rwalk.runners.train",
+         *precise, "--max-iterations", "2", "--student-iterations", "2",
+         "--log-dir", str(run_dir)],
+        **{distributed.PARAMETER_HASHES_ENV: str(tmp_path / "hashes")},
+    )  # fmt: skip
+    assert code == 0, out[-4000:]
+    assert [it for it, _ in checkpoint_files(run_dir)] == [0, 1]
+    assert [it for it, _ in checkpoint_files(run_dir / "student")] == [0, 1]
+    assert "student_state_dict" in load_checkpoint(run_dir / "student" / "model_1.pt")
+
+
 # (c) ranks that differ refuse to start; rank 0's setup errors reach every rank ------------------
 def test_ranks_with_different_flags_refuse_to_start_naming_the_rank_and_flag(tmp_path):
     argv = [*TINY, "--max-iterations", "2", "--log-dir", str(tmp_path / "run")]

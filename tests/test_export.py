@@ -152,7 +152,7 @@ def test_an_onnx_policy_runs_an_episode_of_the_gymnasium_env(exported, monkeypat
     text = (ROOT / "docs" / "environment.md").read_text()
     section = text.split("## Running an exported policy", 1)[1].split("\n## ", 1)[0]
     code, _ = re.findall(r"```python\n(.*?)```", section, re.DOTALL)
-    code = code.replace('"logs/rwalk/exported"', repr(str(onnx_path.parent)))
+    code = code.replace('"logs/plain/exported"', repr(str(onnx_path.parent)))
     code = code.replace("ResidualWalkEnv()", "ResidualWalkEnv(config=QUICK)")
     steps = []
     original_step = ResidualWalkEnv.step
@@ -251,7 +251,7 @@ def test_a_recurrent_onnx_policy_runs_an_episode_of_the_gymnasium_env(recurrent)
     text = (ROOT / "docs" / "environment.md").read_text()
     section = text.split("## Running an exported policy", 1)[1].split("\n## ", 1)[0]
     _, code = re.findall(r"```python\n(.*?)```", section, re.DOTALL)
-    code = code.replace('"logs/rwalk/exported"', repr(str(folder)))
+    code = code.replace('"logs/rwalk/student/exported"', repr(str(folder)))
     code = code.replace("ResidualWalkEnv()", "ResidualWalkEnv(config=QUICK)")
     namespace = {"QUICK": QUICK}
     exec(compile(code, "environment.md recurrent", "exec"), namespace)

@@ -444,7 +444,8 @@ class Preset:
     world, --env.terrain-scale its roughness)"""
     costs: bool = False
     """add the gait costs to the reward (--env.costs.*: swing clearance below a target above
-    the ground, feet slipping, servo power; rwalk.rewards.GaitCosts)"""
+    the ground, feet slipping, servo power; rwalk.rewards.GaitCosts); --recipe precise
+    adds them to residual_walk's robust training either way"""
     settle_pool_fraction: float = SETTLE_POOL_FRACTION
     """settled starts kept ready, as a fraction of --num-envs (--env.settle-pool: a count)"""
     recipe: str = "precise"

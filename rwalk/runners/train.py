@@ -1,6 +1,7 @@
 """Train a policy for a task with rsl-rl's PPO on the batched env.
 
-    rwalk-train                                  # the default training (README)
+    rwalk-train                                  # the default: a teacher, then its student (README)
+    rwalk-train --recipe plain                   # PPO alone, 300 iterations
     rwalk-train --task adaptive_gait --command-range 0.05 0.25
     rwalk-train --max-minutes 30 --max-iterations 100000
     rwalk-train --resume logs/rwalk --max-iterations 200     # newest checkpoint there
@@ -22,7 +23,11 @@ its lock. Every rank must be started with the same flags (only --threads may
 differ): ranks that differ refuse to start, naming the flags.
 
 Every flag is a field of the training's configs (rwalk.rl.config.Training): the
-preset (--task, --robust/--no-robust, --costs) picks the task and world; every
+preset (--task, --robust/--no-robust, --costs, --recipe) picks the task, the world and,
+for residual_walk's robust world, the recipe (--recipe precise: a teacher that reads
+the physics and the ground under its feet, then its blind GRU student in
+LOG_DIR/student, with the gait costs and the speed kernel; each of its values a flag
+that may be set; rwalk.tasks.base.Recipe); every
 field of the task's env config is a flag of its own (--env.costs.clearance 3000,
 --env.randomization.friction 0.5 1.3, --env.terrain-levels.demote 0.3; short names
 for common ones: --settle-steps, --command-range, --terrain-kinds, ...); rsl-rl's
