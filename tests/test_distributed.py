@@ -182,6 +182,8 @@ def test_the_default_recipe_trains_its_teacher_then_its_student_over_two_ranks(t
     assert [it for it, _ in checkpoint_files(run_dir)] == [0, 1]
     assert [it for it, _ in checkpoint_files(run_dir / "student")] == [0, 1]
     assert "student_state_dict" in load_checkpoint(run_dir / "student" / "model_1.pt")
+    rank0, rank1 = hashes(tmp_path / "hashes", 0), hashes(tmp_path / "hashes", 1)
+    assert [it for it, _ in rank0] == [0, 1, 0, 1] and rank0 == rank1  # teacher, then student
 
 
 # (c) ranks that differ refuse to start; rank 0's setup errors reach every rank ------------------

@@ -265,7 +265,7 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
 )
 def test_bad_pairings_are_usage_errors(flags, message, capsys):
     with pytest.raises(SystemExit) as exit_:
-        train.parse_args(flags)
+        train.parse_args(["--recipe", "plain", *flags])  # the plain defaults' pairings
     assert exit_.value.code == 2 and message in capsys.readouterr().err
 
 

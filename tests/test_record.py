@@ -80,7 +80,7 @@ def test_the_command_line_builds_what_the_older_flags_built():
     # record; two changes since: the plain training's last 100 iterations draw the model's
     # physics, and its last 50 train with the speed kernel (its terms at weight 0 before:
     # exact zeros).
-    plain, no_robust = ["--recipe", "plain"], ["--no-robust"]
+    plain, no_robust = ["--recipe", "plain"], ["--recipe", "plain", "--no-robust"]
     for flags, old, stage, late in ((plain, {}, 100, 50), (no_robust, {"robust": False}, 0, 0)):
         new = train.parse_args([*SMALL, *flags])
         args = dataclasses.replace(TrainArgs(), num_envs=6, settle_steps=4, max_episode_steps=40,

@@ -220,7 +220,7 @@ def test_rwalk_train_sets_shaping_and_the_interval_from_its_command_line():
 
 
 def test_the_action_rate_is_a_late_value_beside_the_default_stage_s_kernel():
-    training = train.parse_args(["--late-action-rate", "20"])
+    training = train.parse_args(["--recipe", "plain", "--late-action-rate", "20"])
     assert training.train.late_iterations == 50 and training.train.late_tracking == 200.0
     late = late_reward(training.train, training.env)["shaping"]
     assert late == Shaping(tracking=200.0, action_rate=20.0)

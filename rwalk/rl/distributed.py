@@ -375,15 +375,17 @@ def check_same_settings(group: Group, settings: dict[str, Any]) -> None:
 
 def record_parameter_hashes(runner, folder: str, group: Group) -> None:
     """Test hook (``RWALK_PARAMETER_HASHES``): after every update, append
-    ``<iteration> <sha256 of the actor and critic state>`` to ``folder/rank<r>.txt``
-    (hashed as rsl-rl logs the iteration, right after its update)."""
+    ``<iteration> <sha256 of the actor and critic state>`` (a distilled student's: of the
+    student) to ``folder/rank<r>.txt`` (hashed as rsl-rl logs the iteration, right after
+    its update)."""
     path = Path(folder) / f"rank{group.rank}.txt"
     path.parent.mkdir(parents=True, exist_ok=True)
     log = runner.logger.log
 
     def hash_and_log(*args, **kwargs):
         digest = hashlib.sha256()
-        for model in (runner.alg.actor, runner.alg.critic):
+        names = ("actor", "critic") if hasattr(runner.alg, "actor") else ("student",)
+        for model in (getattr(runner.alg, name) for name in names):
             for name, tensor in model.state_dict().items():
                 digest.update(name.encode())
                 digest.update(tensor.detach().contiguous().numpy().tobytes())
