@@ -24,8 +24,10 @@ class ResidualWalk(Task):
     action_dim = ACTION_DIM
     action_layout = "12 foot residuals (FL, FR, RL, RR x x, y, z)"
     single_step = True
-    nominal_physics_share = 1 / 3  # the last 100 of the default 300 (docs/learning.md)
-    # the last 50 of the default 300 with the speed kernel at 200 (docs/learning.md)
+    # the last third at the model's physics: the recipe's last 167 of 500, plain's 100 of 300
+    nominal_physics_share = 1 / 3
+    # --recipe plain's last 50 of 300 with the speed kernel at 200 (the recipe has the
+    # kernel from the first iteration and --late-iterations 0; docs/learning.md)
     late_stage = (1 / 6, {"late_tracking": 200.0})
     # the adaptive default's recipe on this task: a teacher that reads the drawn physics
     # and the ground under its feet, distilled into a blind GRU student, the gait costs
