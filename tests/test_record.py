@@ -105,8 +105,8 @@ def test_the_command_line_builds_what_the_older_flags_built():
 RECIPE_FLAGS = [
     "--recipe", "plain", "--costs", "--env.costs.power", "2", "--env.shaping.tracking", "300",
     "--env.shaping.sigma", "0.02", "--terrain-kinds", "flat", "rough", "slopes", "steps",
-    "stones", "--max-iterations", "500", "--late-iterations", "0", "--teacher", "--teacher-obs",
-    "physics", "heights_under_feet", "--student-iterations", "190", "--student-actor", "gru",
+    "stones", "--max-iterations", "420", "--late-iterations", "0", "--teacher", "--teacher-obs",
+    "physics", "heights_under_feet", "--student-iterations", "160", "--student-actor", "gru",
     "--distill-levels",
 ]  # fmt: skip
 
@@ -116,7 +116,7 @@ def test_the_default_training_is_the_recipe_that_its_flags_give():
     assert default.preset.recipe == "precise" and given.preset.recipe == "plain"
     assert default.env == given.env
     assert (default.train, default.run) == (given.train, given.run)
-    assert default.train.nominal_physics_iterations == 167  # a third of 500, as before
+    assert default.train.nominal_physics_iterations == 140  # a third of 420
 
 
 @pytest.mark.parametrize("flags", [["--no-teacher"], ["--distill", "logs/teacher"]])
@@ -128,7 +128,7 @@ def test_a_run_without_a_teacher_keeps_the_rest_of_the_recipe(flags):
         "heights",
     )
     assert training.env.costs.power == 2.0 and training.env.shaping.tracking == 300.0
-    assert training.run.max_iterations == 500 and training.train.late_iterations == 0
+    assert training.run.max_iterations == 420 and training.train.late_iterations == 0
 
 
 @pytest.mark.parametrize(
