@@ -60,7 +60,7 @@ import numpy as np
 
 from rwalk import exactmath
 from rwalk.constants import OBS_CONTACT, OBS_DIM, OBS_LINVEL, OBS_POS, OBSERVATION_SENSORS
-from rwalk.gaitmath import advance_phase, speed_schedule, trot_targets
+from rwalk.gaitmath import MAX_STEP_RISE, advance_phase, speed_schedule, trot_targets
 from rwalk.kinematics import LegGeometry, leg_ik
 
 #: The readings ``Controller.step`` takes: (sensor name, width), in order (65 values).
@@ -615,6 +615,8 @@ def _check_adaptive(fields: _Fields, gait: dict, adaptive: dict) -> None:
         fields.number(schedule, "deploy.adaptive.schedule.stride", MIN_SPEED, MAX_LENGTH)
         fields.array(schedule, "deploy.adaptive.schedule.window", (4,), 0.0, 1.0)
         fields.number(schedule, "deploy.adaptive.schedule.speed", MIN_SPEED, MAX_LENGTH)
+        if "step_rise" in schedule:  # (absent from exports before it: 0)
+            fields.number(schedule, "deploy.adaptive.schedule.step_rise", 0.0, MAX_STEP_RISE)
     for key in ("low", "high", "start"):  # the cycle time: the phase advances by dt / it
         fields.check(adaptive[key][2], f"deploy.adaptive.{key}[2]", *CYCLE_TIME_RANGE)
     if not (high - low >= MIN_PARAM_SPAN).all():
@@ -931,13 +933,14 @@ class AdaptiveGait:
             self.span = np.array(schedule["window"], dtype=np.float64) * self.half_width
             self.speed = float(schedule["speed"])
             """The target velocity when the policy reads no command. m/s."""
+            self.step_rise = float(schedule.get("step_rise", 0.0))
         self.reset(0)
 
     def scheduled(self, command: float | None) -> np.ndarray:
         """The gait the target velocity asks for (``rwalk.gaitmath.speed_schedule``)."""
         speed = self.speed if command is None else command
         return speed_schedule(np.array([speed]), self.stride, self.low, self.high,
-                              self.start)[0]  # fmt: skip
+                              self.start, self.step_rise, self.speed)[0]  # fmt: skip
 
     def reset(self, tick: int) -> None:
         self.params = self.start.copy()

@@ -10,6 +10,10 @@ import itertools
 
 from rwalk import arrayops
 
+#: Steepest rise of a speed schedule's step height (``schedule_step_rise``): 1 m per m/s,
+#: 10 mm per 0.01 m/s, far beyond any useful one. Metres per m/s.
+MAX_STEP_RISE = 1.0
+
 #: Phase offset of each leg (FL, FR, RL, RR): diagonal pairs in step.
 TROT_OFFSETS: tuple[float, ...] = (0.0, 0.5, 0.5, 0.0)
 
@@ -99,17 +103,23 @@ def trot_targets(phase, step_height, step_length, stance_z, duty_factor: float, 
     return targets, swing
 
 
-def speed_schedule(speed, stride: float, low, high, start):
+def speed_schedule(
+    speed, stride: float, low, high, start, rise: float = 0.0, reference: float = 0.0
+):
     """The gait a target velocity asks for: the cycle clamp(stride / speed) within its
     range, the stride speed x cycle within its range (so stride / cycle = speed where
-    the ranges allow), the step and body heights of the starting gait. Elementwise IEEE
-    arithmetic on torch tensors or numpy arrays alike (``rwalk.arrayops``), so the
-    runtime computes the env's bits.
+    the ranges allow), the body height of the starting gait, and its step height, or with
+    a ``rise`` the step height start + (speed - reference) x rise within its range.
+    Elementwise IEEE arithmetic on torch tensors or numpy arrays alike
+    (``rwalk.arrayops``), so the runtime computes the env's bits.
 
     Args:
         speed: target velocities, > 0. Shape: (N,).
         stride: the config's ``schedule_stride``, metres.
         low, high, start: the parameters' ranges and starting gait. Shape: (4,).
+        rise: the config's ``schedule_step_rise``, metres of step per m/s (0: the
+            starting gait's step at every speed).
+        reference: the speed at which the step is the starting gait's, m/s.
 
     Returns:
         step_height, step_length, cycle_time, body_height. Shape: (N, 4).
@@ -121,4 +131,6 @@ def speed_schedule(speed, stride: float, low, high, start):
     gait = xp.expand(start, (speed.shape[0], 4))
     gait[:, 1] = length
     gait[:, 2] = cycle
+    if rise != 0.0:
+        gait[:, 0] = xp.clamp(start[0] + (speed - reference) * rise, low[0], high[0])
     return gait

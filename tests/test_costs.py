@@ -283,6 +283,21 @@ def test_speed_schedule_hand_computed_with_torch_and_numpy_alike():
     assert np.array_equal(as_torch.numpy(), got)  # the runtime's bits are the env's
 
 
+def test_a_schedule_s_step_rises_with_the_speed_within_its_range():
+    low, high = np.array([0.01, 0.04, 0.45, 0.05]), np.array([0.04, 0.16, 0.9, 0.09])
+    start = np.array([0.012, 0.08, 0.6, 0.07])
+    speed = np.array([0.05, 0.125, 0.25, 1.0])
+    got = speed_schedule(speed, 0.06, low, high, start, 0.04, 0.125)
+    # 12 mm + (v - 0.125) x 40 mm per m/s: 0.05 -> 9 mm, below the 10 mm floor; 0.125 ->
+    # 12 mm; 0.25 -> 17 mm; 1.0 -> 47 mm, above the 40 mm top. The rest as without a rise.
+    np.testing.assert_allclose(got[:, 0], [0.01, 0.012, 0.017, 0.04], rtol=0, atol=1e-15)
+    without = speed_schedule(speed, 0.06, low, high, start)
+    assert np.array_equal(got[:, 1:], without[:, 1:]) and (without[:, 0] == 0.012).all()
+    as_torch = speed_schedule(torch.from_numpy(speed), 0.06,
+                              *map(torch.from_numpy, (low, high, start)), 0.04, 0.125)  # fmt: skip
+    assert np.array_equal(as_torch.numpy(), got)
+
+
 def test_the_schedule_action_moves_each_parameter_toward_the_speed_s_gait_and_a_window_of_it():
     core = _core("adaptive_gait", n=3, gait_action="schedule", command_range=(0.05, 0.25))
     task = core.task
@@ -313,6 +328,14 @@ def test_the_schedule_follows_a_new_command():
     # 0.05 m/s: 1.2 s -> the 0.9 s top, 45 mm; 0.2 m/s: 0.3 s, 60 mm (the contract's ranges)
     want = torch.tensor([[0.025, 0.045, 0.9, 0.07], [0.025, 0.06, 0.3, 0.07]], dtype=F64)
     assert torch.allclose(core.task.scheduled(), want, rtol=0, atol=1e-15)
+    risen = _core("adaptive_gait", n=2, gait_action="schedule", command_range=(0.05, 0.25),
+                  schedule_step_rise=0.05)  # fmt: skip
+    risen.reset()
+    risen.task.target[:] = torch.tensor([0.05, 0.2], dtype=F64)
+    # from the trot's 25 mm at its 0.08 / 0.6 m/s, 50 mm per m/s: 0.05 -> 25 - 4.17 mm,
+    # 0.2 -> 25 + 3.33 mm
+    want[:, 0] = torch.tensor([0.025 - 0.25 / 60, 0.025 + 0.2 / 60], dtype=F64)
+    assert torch.allclose(risen.task.scheduled(), want, rtol=0, atol=1e-15)
 
 
 @pytest.mark.parametrize(
@@ -324,6 +347,9 @@ def test_the_schedule_follows_a_new_command():
         ({"schedule_window": (1.0, 0.5, 0.5)}, r"schedule_window must be 4 fractions"),
         ({"schedule_window": (1.0, 1.5, 0.5, 0.0)}, r"schedule_window .* got \(1\.0, 1\.5"),
         ({"schedule_window": (1.0, math.nan, 0.5, 0.0)}, r"schedule_window .* nan"),
+        ({"schedule_step_rise": -0.01}, r"schedule_step_rise .* per m/s in \[0, 1\], got -0\.01"),
+        ({"schedule_step_rise": math.inf}, r"schedule_step_rise .* got inf"),
+        ({"schedule_step_rise": math.nan}, r"schedule_step_rise .* got nan"),
         (
             {"gait_action": "schedule", "command_range": (-0.1, 0.2)},
             r"gait_action 'schedule' needs forward target velocities .* asks for -0\.1",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -59,11 +60,12 @@ def test_the_export_carries_the_gait_and_legs_bit_for_bit(exports):
     )
 
 
-def _env(task: str = "residual_walk", n: int = 3, steps: int = 80, gait_action: str = "target"
-         ) -> BatchedEnv:  # fmt: skip
+def _env(task: str = "residual_walk", n: int = 3, steps: int = 80, gait_action: str = "target",
+         **options) -> BatchedEnv:  # fmt: skip
     adaptive = {"command_range": (0.05, 0.25), "gait_action": gait_action}
     config = presets.evaluation_config(task, max_steps=steps, settle_steps=50,
                                        **(adaptive if task == "adaptive_gait" else {}))  # fmt: skip
+    config = dataclasses.replace(config, **options)
     return BatchedEnv(n, config, seed=0, task=task)
 
 
@@ -82,6 +84,20 @@ def test_the_runtime_on_mj_step_follows_the_env_bit_for_bit(exports, policy, tas
     assert [t.env for t in traces] == [0, 1, 2]
     assert all(t.steps >= 10 for t in traces)  # (these random policies fall soon)
     assert all(t.first_difference is None and t.max_difference == 0.0 for t in traces)
+
+
+def test_a_schedule_whose_step_rises_with_the_speed_runs_bit_for_bit(exports, tmp_path):
+    folder = Path(shutil.copytree(exports / "schedule", tmp_path / "schedule"))
+    layout = json.loads((folder / "policy.json").read_text())
+    assert layout["deploy"]["adaptive"]["schedule"]["step_rise"] == 0.0  # the export's own
+    layout["deploy"]["adaptive"]["schedule"]["step_rise"] = 0.04
+    (folder / "policy.json").write_text(json.dumps(layout))
+    env = _env("adaptive_gait", gait_action="schedule", schedule_step_rise=0.04)
+    traces = sim2sim.closed_loop(folder, env, seed=7, steps=80)
+    assert env.core.task.scheduled()[:, 0].unique().numel() == 3  # three commands, three steps
+    assert all(t.first_difference is None and t.max_difference == 0.0 for t in traces)
+    differs = sim2sim.closed_loop(folder, _env("adaptive_gait", gait_action="schedule"), 7, 80)
+    assert all(t.max_difference > 0.0 for t in differs)  # the rise is read, not ignored
 
 
 def test_the_comparison_sees_a_runtime_that_differs(exports, tmp_path):

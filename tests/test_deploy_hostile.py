@@ -169,6 +169,12 @@ BAD_NUMBERS = [
         r"a finite number in \[0\.001, 10\], got 0\.0",
     ),
     ("schedule", ("deploy", "adaptive", "schedule", "speed"), NAN, r".*got nan"),
+    (
+        "schedule",
+        ("deploy", "adaptive", "schedule", "step_rise"),
+        -0.04,
+        r"a finite number in \[0, 1\], got -0\.04",
+    ),
     ("gru", ("recurrent",), [1, 2], r"an object \(or absent: an MLP\), got \[1, 2\]"),
     ("gru", ("recurrent", "hidden"), 10**9, r"a whole number in \[1, 4096\], got 1000000000"),
     ("gru", ("input", "shape", 1), -68, r"a whole number in \[1, 4096\], got -68"),

@@ -41,7 +41,7 @@ from rwalk import mirror as mirrors
 from rwalk.config import EnvConfig, _is_number
 from rwalk.constants import ACTION_DIM
 from rwalk.gait import BezierGaitController, GaitParameters, GaitShape, advance_phase
-from rwalk.gaitmath import speed_schedule
+from rwalk.gaitmath import MAX_STEP_RISE, speed_schedule
 from rwalk.mirror import Mirror
 from rwalk.observations import ObsPiece
 from rwalk.tasks.base import Task
@@ -146,6 +146,11 @@ class AdaptiveGaitConfig(EnvConfig):
     """With gait_action "schedule": how far the action may move each parameter's target
     from the schedule's (step_height, step_length, cycle_time, body_height), as a
     fraction in [0, 1] of the parameter's half_width (0 pins it to the schedule)."""
+    schedule_step_rise: float = 0.0
+    """With gait_action "schedule": how the schedule's step height rises with the target
+    velocity, metres per m/s, from the starting gait's step at its speed
+    (``expected_velocity``), within step_height's range; 0 keeps the starting gait's step
+    at every speed."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -171,6 +176,13 @@ class AdaptiveGaitConfig(EnvConfig):
                 f"[0, 1] ({', '.join(ADAPTED)}), got {window!r}"
             )
         object.__setattr__(self, "schedule_window", tuple(float(w) for w in window))
+        rise = self.schedule_step_rise
+        if not (_is_number(rise) and 0.0 <= rise <= MAX_STEP_RISE):  # (NaN fails)
+            raise ValueError(
+                f"AdaptiveGaitConfig.schedule_step_rise must be metres per m/s in "
+                f"[0, {MAX_STEP_RISE:g}], got {rise!r}"
+            )
+        object.__setattr__(self, "schedule_step_rise", float(rise))
         if self.gait_action == "schedule":
             slowest = (self.expected_velocity if self.command_range is None
                        else self.command_range[0])  # fmt: skip
@@ -223,7 +235,8 @@ class AdaptiveGait(Task):
         "4 gait deltas (step_height, step_length, cycle_time, body_height), then 12 foot residuals"
     )
     observation = ("sensors", "gait")
-    action_fields = ("bounds", "gait_action", "schedule_stride", "schedule_window")
+    action_fields = ("bounds", "gait_action", "schedule_stride", "schedule_window",
+                     "schedule_step_rise")  # fmt: skip
     acting_fields = (*Task.acting_fields, *action_fields)
 
     @classmethod
@@ -251,6 +264,7 @@ class AdaptiveGait(Task):
         if core.config.gait_action == "schedule":
             adaptive["schedule"] = {"stride": core.config.schedule_stride,
                                     "window": list(core.config.schedule_window),
+                                    "step_rise": core.config.schedule_step_rise,
                                     "speed": core.config.expected_velocity}  # fmt: skip
         return {"runtime": "adaptive", "gait": gait, "adaptive": adaptive}
 
@@ -342,7 +356,8 @@ class AdaptiveGait(Task):
         """The gait each env's target velocity asks for (``speed_schedule``). Shape: (N, 4)."""
         speed = torch.as_tensor(self.v_target, dtype=torch.float64).expand(self.num_envs)
         cfg = self.config
-        return speed_schedule(speed, cfg.schedule_stride, self.low, self.high, self.start)
+        return speed_schedule(speed, cfg.schedule_stride, self.low, self.high, self.start,
+                              cfg.schedule_step_rise, cfg.expected_velocity)  # fmt: skip
 
     @property
     def phase(self) -> Tensor:
