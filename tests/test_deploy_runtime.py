@@ -213,6 +213,15 @@ def test_an_adaptive_policy_moves_its_gait_within_the_bounds(exports, readings):
     )
 
 
+def test_an_export_from_before_the_step_rise_reads_none(exports, tmp_path):
+    folder = _copy(exports, tmp_path, "schedule")
+    _edit(folder, lambda layout: layout["deploy"]["adaptive"]["schedule"].pop("step_rise"))
+    older, current = Controller(folder).gait, Controller(exports / "schedule").gait
+    assert older.step_rise == 0.0
+    for speed in (0.05, 0.2):
+        np.testing.assert_array_equal(older.scheduled(speed), current.scheduled(speed))
+
+
 def test_a_scheduled_gait_follows_the_command_and_refuses_a_backward_one(exports, readings):
     controller = Controller(exports / "schedule")
     gait = controller.gait
