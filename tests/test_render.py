@@ -31,8 +31,12 @@ def _python(code: str, *args: str) -> subprocess.CompletedProcess:
 
 
 def test_importing_the_runners_leaves_the_environment_alone():
+    # the libraries they build on set variables of their own on import (torchrl
+    # LAZY_LEGACY_OP, torch TORCHINDUCTOR_CACHE_DIR, gymnasium PYGAME_HIDE_SUPPORT_PROMPT):
+    # imported first, so that what is compared is rwalk's own doing, whatever ran before
     done = _python(
-        "import os; before = dict(os.environ); import rwalk.runners.play, rwalk.runners.train; "
+        "import os, gymnasium, mujoco, rsl_rl, tensordict, torch, torchrl; "
+        "before = dict(os.environ); import rwalk.runners.play, rwalk.runners.train; "
         "assert dict(os.environ) == before, set(os.environ.items()) ^ set(before.items())"
     )
     assert done.returncode == 0, done.stderr
