@@ -213,3 +213,6 @@ def test_the_adaptive_default_command_is_the_same_in_the_readme_and_the_docs():
     assert args.train.teacher and args.train.student_iterations == 190
     assert args.train.student_actor == "gru" and args.train.distill_levels
     assert args.env.gait_action == "schedule" and args.env.bounds.step_length.low == 0.04
+    # the step pinned to the schedule, 13 mm at v* rising 40 mm per m/s, at a 0.60 duty factor
+    assert args.env.schedule_step_rise == 0.04 and args.env.schedule_window[0] == 0.0
+    assert args.env.gait.step_height == 0.013 and args.env.gait.duty_factor == 0.6
