@@ -361,6 +361,79 @@ def test_a_warm_start_that_does_not_fit_is_named(teacher, tmp_path):
     assert "a distilled student" in refused("--warm-start", str(student))
 
 
+def test_one_command_fine_tunes_its_student_with_ppo_and_the_teachers_critic(tmp_path, capsys):
+    """--finetune-iterations: a third stage, PPO on the distilled GRU student (its weights,
+    normaliser and levels) with the teacher's MLP critic and action std; it resumes, plays
+    and exports like any PPO run."""
+    folder = tmp_path / "run"
+    flags = [flag for flag in TINY if flag != "--no-export"]
+    train.main([*flags, "--teacher", "--max-iterations", "2", "--student-iterations", "2",
+                "--rnn-hidden-dim", "16", "--finetune-iterations", "1",
+                "--finetune-learning-rate", "1e-12", "--log-dir", str(folder)])  # fmt: skip
+    student, teacher = folder / "student" / "model_1.pt", folder / "model_1.pt"
+    assert f"warm start from {student}, its critic from {teacher}" in capsys.readouterr().out
+    finetune = folder / "finetune"
+    record = json.loads((finetune / "config.json").read_text())["train"]
+    taught = json.loads((folder / "student" / "config.json").read_text())["train"]
+    assert record["warm_start"] == str(student) and record["warm_start_critic"] == str(teacher)
+    assert record["actor"] == "gru" and record["critic"] == "mlp" and record["distill"] == ""
+    assert record["policy_obs"] == taught["policy_obs"] and record["learning_rate"] == 1e-12
+    assert record["critic_obs"] == json.loads((folder / "config.json").read_text())[
+        "train"]["critic_obs"]  # fmt: skip
+    assert record["warm_start_levels"] and record["finetune_iterations"] == 0
+    # at a step of ~1e-12 the first iteration leaves the weights where the warm start put
+    # them: the student's, with the teacher's std; the teacher's critic
+    tuned, distilled = load_checkpoint(finetune / "model_0.pt"), load_checkpoint(student)
+    ppo = load_checkpoint(teacher)
+    for name, weights in distilled["student_state_dict"].items():
+        if "normalizer" not in name and not name.startswith("distribution."):
+            assert torch.allclose(tuned["actor_state_dict"][name], weights, atol=1e-6), name
+    std = tuned["actor_state_dict"]["distribution.std_param"]
+    assert torch.allclose(std, ppo["actor_state_dict"]["distribution.std_param"], atol=1e-6)
+    assert not torch.allclose(std, distilled["student_state_dict"]["distribution.std_param"])
+    for name, weights in ppo["critic_state_dict"].items():
+        if "normalizer" not in name:
+            assert torch.allclose(tuned["critic_state_dict"][name], weights, atol=1e-6), name
+    assert (finetune / "exported" / "policy.onnx").is_file()
+    train.main(["--resume", str(finetune), "--max-iterations", "2"])
+    assert [it for it, _ in checkpoint_files(finetune)] == [0, 1]
+    assert play.play(["--checkpoint", str(finetune / "model_1.pt"), *PLAY])[0].episodes == 2
+
+
+def test_a_warm_start_may_keep_its_curriculum_levels(tmp_path):
+    source = tmp_path / "source"
+    train.main([*TINY, "--max-iterations", "1", "--log-dir", str(source)])
+    saved = load_checkpoint(source / "model_0.pt")
+    saved["env_state"]["terrain_level"] = torch.full_like(saved["env_state"]["terrain_level"], 5)
+    climbed = tmp_path / "climbed"  # a run whose curriculum climbed to 5
+    climbed.mkdir()
+    torch.save(saved, climbed / "model_0.pt")
+    shutil.copy(source / "config.json", climbed)
+    levels = {}
+    for name, flags in (("own", []), ("kept", ["--warm-start-levels"])):
+        train.main([*TINY, "--warm-start", str(climbed), *flags, "--max-iterations", "1",
+                    "--log-dir", str(tmp_path / name)])  # fmt: skip
+        levels[name] = load_checkpoint(tmp_path / name / "model_0.pt")["env_state"]["terrain_level"]
+    assert levels["own"].max() <= 1  # in one iteration an env moves a level at most
+    assert levels["kept"].min() >= 4 and (levels["kept"] == 5).any()
+
+
+def test_a_warm_start_critic_that_does_not_fit_is_named(teacher, tmp_path):
+    student = tmp_path / "student"
+    train.main([*TINY, "--distill", str(teacher), "--actor", "gru", "--rnn-hidden-dim", "16",
+                "--max-iterations", "1", "--log-dir", str(student)])  # fmt: skip
+    refused = partial(_refused, tmp_path / "out", "--warm-start", str(student), "--actor", "gru",
+                      "--rnn-hidden-dim", "16")  # fmt: skip
+    assert "--warm-start-critic" in refused()  # a student has no critic
+    assert (f"--warm-start-critic {student / 'model_0.pt'}: a distilled student"
+            in refused("--warm-start-critic", str(student)))  # fmt: skip
+    # the teacher's critic reads the privileged pieces, an MLP: this run's must too
+    assert "--critic-obs" in refused("--warm-start-critic", str(teacher), "--critic", "mlp",
+                                     "--critic-obs", "observation")  # fmt: skip
+    assert ("its run trained with --critic mlp, this run with --critic gru"
+            in refused("--warm-start-critic", str(teacher)))  # fmt: skip
+
+
 @pytest.fixture
 def draws(monkeypatch) -> list:
     """(ranges, physics drawn) at every reset of every env of the runs that follow."""

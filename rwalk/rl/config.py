@@ -192,7 +192,21 @@ class TrainConfig:
     this checkpoint file, or the newest in this run folder, of an rwalk-train run of this
     task whose actor and critic read the same pieces with the same models; unlike --resume,
     this run starts at iteration 0 with a fresh optimizer and curriculum, in this command's
-    world (a policy trained in one world, fine-tuned in the robust one)"""
+    world (a policy trained in one world, fine-tuned in the robust one); or a distilled
+    student's checkpoint, whose student becomes the actor (--warm-start-critic then names
+    the critic)"""
+    warm_start_critic: str = ""
+    """--warm-start: start the critic from this checkpoint file, or the newest in this run
+    folder, of an rwalk-train PPO run of this task whose critic reads the same pieces with
+    the same model (--critic-obs, --critic, --hidden-dims); needed where --warm-start names a
+    distilled student, which has no critic and whose action std never trained: both then
+    come from this run (the student's teacher, for a PPO fine-tune of the student)"""
+    warm_start_levels: bool = False
+    """--warm-start: the curriculum starts where the warm start's checkpoint left it (each
+    env on its terrain level; with another number of envs, at the start level) instead of
+    at the start level"""
+    critic: str = ""
+    """the critic's model: mlp, gru or lstm ('': the actor's, --actor)"""
     gradient_length: int = 15
     """--distill: steps whose losses add up before each gradient step (a recurrent student
     learns through them)"""
@@ -263,17 +277,30 @@ class TrainConfig:
     """--distill, --student-iterations: the student's curriculum starts where its teacher's
     checkpoint left it (each env on its teacher's terrain level; with another number of
     envs, at the start level) instead of at the start level"""
+    finetune_iterations: int = 0
+    """--student-iterations or --distill: when the student is distilled, train it on with
+    PPO for this many iterations in LOG_DIR/finetune (LOG_DIR: the teacher's with
+    --student-iterations): the student as the actor from the distillation's last
+    checkpoint and curriculum levels, its teacher's critic and action std, the student's
+    world, reward and pieces, --finetune-learning-rate, no symmetry; an interrupted
+    fine-tune goes on with --resume LOG_DIR/finetune (docs/learning.md)"""
+    finetune_learning_rate: float = 1e-4
+    """--finetune-iterations: the fine-tune's first Adam step (adaptive on KL from there)"""
 
     def __post_init__(self) -> None:
         require_choice(self, "actor", ACTORS)
         require_choice(self, "student_actor", ACTORS)
+        if self.critic not in ("", *ACTORS):
+            raise ValueError(f"--critic must be one of {', '.join(ACTORS)} (or '' for the "
+                             f"actor's), got {self.critic!r}")  # fmt: skip
         require_at_least(self, 1, "rnn_hidden_dim", "gradient_length")
         stage = () if self.nominal_physics_iterations is None else ("nominal_physics_iterations",)
-        require_at_least(self, 0, "student_iterations", *stage)
+        require_at_least(self, 0, "student_iterations", "finetune_iterations", *stage)
         if self.nominal_physics_entropy_coef is not None:
             require_at_least(self, 0, "nominal_physics_entropy_coef")
         require_at_most(self, MAX_WIDTH, "rnn_hidden_dim")
-        require_at_most(self, MAX_ITERATIONS, "gradient_length", "student_iterations", *stage)
+        require_at_most(self, MAX_ITERATIONS, "gradient_length", "student_iterations",
+                        "finetune_iterations", *stage)  # fmt: skip
         for name in self.nominal_physics_keep:
             if name not in PHYSICS_RANGES:
                 raise ValueError(f"--nominal-physics-keep names ranges of --env.randomization "
@@ -314,6 +341,14 @@ class TrainConfig:
         if self.warm_start and self.distill:
             raise ValueError("--warm-start and --distill do not go together: a distilled "
                              "student learns from its teacher, from scratch")  # fmt: skip
+        for name in ("warm_start_critic", "warm_start_levels"):
+            if getattr(self, name) and not self.warm_start:
+                raise ValueError(f"{show_flag(name, getattr(self, name))} needs --warm-start: "
+                                 "it completes the warm start's checkpoint")  # fmt: skip
+        if self.finetune_iterations and not (self.student_iterations or self.distill):
+            raise ValueError(f"--finetune-iterations {self.finetune_iterations} needs "
+                             "--student-iterations or --distill: it fine-tunes a distilled "
+                             "student")  # fmt: skip
         obs = self.teacher_obs
         if not obs or not set(obs) <= set(SIMULATOR_PIECES) or len(set(obs)) != len(obs):
             raise ValueError(f"{show_flag('teacher_obs', obs)}: privileged pieces from "
@@ -327,7 +362,8 @@ class TrainConfig:
         require_at_least(self, 1, "num_steps_per_env", "num_learning_epochs", "num_mini_batches")
         require_at_most(self, MAX_ITERATIONS, "num_steps_per_env", "num_learning_epochs",
                         "num_mini_batches")  # fmt: skip
-        require_positive(self, "reward_scale", "learning_rate", "init_noise_std", "clip_param")
+        require_positive(self, "reward_scale", "learning_rate", "init_noise_std", "clip_param",
+                         "finetune_learning_rate")  # fmt: skip
         require_positive(self, "desired_kl", "max_grad_norm")
         require_at_least(self, 0, "entropy_coef")
         require_in(self, "gamma", 0.0, 1.0, low_open=True)
@@ -340,17 +376,23 @@ class TrainConfig:
                 f"units, got {self.hidden_dims}"
             )
 
-    def model(self, output_std: bool = True) -> dict[str, Any]:
-        """rsl-rl's config of this run's actor (a student's) model; ``output_std``: with its
-        Gaussian output (a stochastic policy)."""
+    @property
+    def critic_kind(self) -> str:
+        """The critic's model (mlp, gru, lstm): --critic, else the actor's."""
+        return self.critic or self.actor
+
+    def model(self, output_std: bool = True, kind: str | None = None) -> dict[str, Any]:
+        """rsl-rl's config of this run's actor (a student's) model, or of ``kind`` (mlp, gru,
+        lstm); ``output_std``: with its Gaussian output (a stochastic policy)."""
+        kind = kind or self.actor
         model: dict[str, Any] = {
-            "class_name": "MLPModel" if self.actor == "mlp" else "RNNModel",
+            "class_name": "MLPModel" if kind == "mlp" else "RNNModel",
             "hidden_dims": list(self.hidden_dims),
             "activation": "elu",
             "obs_normalization": True,
         }
-        if self.actor != "mlp":
-            model |= {"rnn_type": self.actor, "rnn_hidden_dim": self.rnn_hidden_dim,
+        if kind != "mlp":
+            model |= {"rnn_type": kind, "rnn_hidden_dim": self.rnn_hidden_dim,
                       "rnn_num_layers": 1}  # fmt: skip
         if output_std:
             model["distribution_cfg"] = {
@@ -403,15 +445,16 @@ class TrainConfig:
             "obs_groups": {"actor": ["policy"], "critic": ["critic"]},
             "algorithm": algorithm,
             "actor": self.model(),
-            "critic": self.model(output_std=False),
+            "critic": self.model(output_std=False, kind=self.critic_kind),
         }
 
 
 def mirrored(train) -> bool:
     """Whether a training (its ``TrainConfig``, or the ``Training``) augments with mirrors:
-    --symmetry, where rsl-rl allows it (PPO with an MLP actor)."""
+    --symmetry, where rsl-rl allows it (PPO with an MLP actor and critic)."""
     train = getattr(train, "train", train)
-    return train.symmetry and train.actor == "mlp" and not train.distill
+    mlp = train.actor == "mlp" and train.critic_kind == "mlp"
+    return train.symmetry and mlp and not train.distill
 
 
 def symmetry_refusal(train) -> str | None:
@@ -423,8 +466,9 @@ def symmetry_refusal(train) -> str | None:
     if train.distill:
         return ("--symmetry and --distill do not go together (rsl-rl's Distillation refuses "
                 "the symmetry extension)")  # fmt: skip
-    return (f"--symmetry needs --actor mlp (rsl-rl's symmetry augmentation refuses recurrent "
-            f"models), got --actor {train.actor}")  # fmt: skip
+    return (f"--symmetry needs --actor mlp and an MLP critic (rsl-rl's symmetry augmentation "
+            f"refuses recurrent models), got --actor {train.actor} "
+            f"--critic {train.critic_kind}")  # fmt: skip
 
 
 #: How rwalk-train trains a task (Preset.recipe).
@@ -671,6 +715,7 @@ def student_training(teacher: Training) -> Training:
         teacher.train, teacher=False, teacher_obs=PRIVILEGED_PIECES, distill=teacher.run.log_dir,
         warm_start="", policy_obs=blind,
         actor=teacher.train.student_actor, student_iterations=0, symmetry=False, critic_obs=(),
+        critic="", warm_start_critic="", warm_start_levels=False,
         late_iterations=0, flat_kinds=(), flat_from=0, flat_until=None,
         **dict.fromkeys(LATE_VALUES),
     )  # fmt: skip
@@ -680,6 +725,30 @@ def student_training(teacher: Training) -> Training:
         run_name=f"{teacher.run.run_name or Path(teacher.run.log_dir).name}-student",
     )  # fmt: skip
     return resolved(dataclasses.replace(teacher, train=train, run=run))
+
+
+def finetune_training(student: Training, checkpoint: Path, teacher: Path,
+                      teacher_args: Training) -> Training:  # fmt: skip
+    """The fine-tune stage of ``student`` (a distillation with --finetune-iterations): PPO on
+    its ``checkpoint`` in LOG_DIR/finetune (LOG_DIR: where the one command's teacher is, or
+    the student's folder of a --distill run) for --finetune-iterations iterations, the student
+    as the actor with its curriculum levels, the critic and action std of its ``teacher``
+    checkpoint (whose run is ``teacher_args``), in the student's world with its reward and
+    pieces, at --finetune-learning-rate, without symmetry or late stages."""
+    train = dataclasses.replace(
+        student.train, distill="", distill_levels=False, finetune_iterations=0,
+        warm_start=str(checkpoint), warm_start_critic=str(teacher), warm_start_levels=True,
+        critic=teacher_args.train.critic_kind, critic_obs=teacher_args.train.critic_obs,
+        learning_rate=student.train.finetune_learning_rate, symmetry=False,
+        nominal_physics_iterations=0, nominal_physics_keep=(), late_iterations=0,
+    )  # fmt: skip
+    log_dir = Path(student.run.log_dir)
+    home = log_dir.parent if log_dir.name == "student" else log_dir
+    run = dataclasses.replace(
+        student.run, resume="", max_iterations=student.train.finetune_iterations,
+        log_dir=str(home / "finetune"), run_name=f"{student.run.run_name or home.name}-finetune",
+    )  # fmt: skip
+    return resolved(dataclasses.replace(student, train=train, run=run))
 
 
 #: TrainConfig's fields whose default changed after runs were recorded without them (a

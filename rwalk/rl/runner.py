@@ -94,8 +94,10 @@ class SafeRunnerMixin:
         map_location: str | None = None,
         data: bytes | None = None,
         env_state: bool = True,
+        state: dict | None = None,
     ) -> dict | None:
-        """Load the state ``path`` holds (``data``: its bytes, read by rank 0); with
+        """Load the state ``path`` holds (``data``: its bytes, read by rank 0; ``state``: a
+        checked state made of such files' parts, which ``path`` then only names); with
         ``env_state``, the env's too (the curriculum).
 
         Raises:
@@ -103,7 +105,7 @@ class SafeRunnerMixin:
             CheckpointError: naming the file, if it is not an rsl-rl save, its models do not
                 have the shapes this run's config builds, or its env state is not the env's.
         """
-        loaded = check_rsl_rl(load_checkpoint(path, data), path)
+        loaded = state if state is not None else check_rsl_rl(load_checkpoint(path, data), path)
         try:
             resumed = self.alg.load(loaded, load_cfg, strict)
         except (RuntimeError, KeyError, ValueError, TypeError) as error:

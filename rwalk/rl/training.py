@@ -47,6 +47,7 @@ from rwalk.rl.config import (
     RunConfig,
     TrainConfig,
     Training,
+    finetune_training,
     flag_of,
     late_reward,
     leaves,
@@ -171,43 +172,95 @@ def teacher_of(args) -> Teacher | None:
 
 
 #: What a --warm-start checkpoint's run must share with the run it starts: the task, the
-#: pieces its actor and critic read, and their models.
-WARM_START_SAME = ("--task", "--policy-obs", "--critic-obs", "--actor", "--hidden-dims",
-                   "--rnn-hidden-dim")  # fmt: skip
+#: pieces its actor reads and the actor's model; and what --warm-start-critic's (else the
+#: --warm-start checkpoint's own) must share: the task, the pieces its critic reads and
+#: the critic's model (a recurrent layer's size only for a recurrent model).
+WARM_START_ACTOR = ("--task", "--policy-obs", "--actor", "--hidden-dims", "--rnn-hidden-dim")
+WARM_START_CRITIC = ("--task", "--critic-obs", "--critic", "--hidden-dims", "--rnn-hidden-dim")
 
 
-def warm_start_of(args: Training) -> Path | None:
-    """The checkpoint --warm-start names, checked against this run: an rsl-rl PPO save of
-    a run of this task whose actor and critic read the same pieces with the same models
-    (``WARM_START_SAME``; a recurrent layer's size only for a recurrent actor).
+class WarmStart(NamedTuple):
+    """The checkpoints a new run starts its models from (--warm-start)."""
+
+    actor: Path
+    """Its actor's (a PPO actor's, or a distilled student's), and the curriculum's with
+    --warm-start-levels."""
+    critic: Path | None
+    """Its critic's (--warm-start-critic; None: ``actor``'s own)."""
+
+
+def warm_start_of(args: Training) -> WarmStart | None:
+    """The checkpoints --warm-start and --warm-start-critic name, checked against this run:
+    rsl-rl saves of runs of this task whose actor (a PPO actor, or a distilled student) and
+    critic (PPO's) read the same pieces with the same models (``WARM_START_ACTOR``,
+    ``WARM_START_CRITIC``).
 
     Raises:
         FileNotFoundError, CheckpointError, ConfigError: naming the flag and the file.
         RunSetupError: naming the flag and both values, for a checkpoint that does not fit.
     """
-    value = args.train.warm_start
-    if not value:
+    train = args.train
+    if not train.warm_start:
         return None
-    path, state, theirs = _run_checkpoint("--warm-start", value)
-    if "actor_state_dict" not in state or "critic_state_dict" not in state:
-        raise RunSetupError(f"--warm-start {path}: a distilled student, not a policy trained "
-                            "with PPO (it has no critic)")  # fmt: skip
     mine = args.resolved()
+    path, state, theirs = _run_checkpoint("--warm-start", train.warm_start)
+    _fits("--warm-start", path, theirs, mine, WARM_START_ACTOR)
+    if not train.warm_start_critic:
+        if "critic_state_dict" not in state:
+            raise RunSetupError(f"--warm-start {path}: a distilled student has no critic (nor a "
+                                "trained action std): name its teacher's checkpoint with "
+                                "--warm-start-critic")  # fmt: skip
+        _fits("--warm-start", path, theirs, mine, WARM_START_CRITIC)
+        return WarmStart(path, None)
+    critic, saved, run = _run_checkpoint("--warm-start-critic", train.warm_start_critic)
+    if "critic_state_dict" not in saved:
+        raise RunSetupError(f"--warm-start-critic {critic}: a distilled student, not a policy "
+                            "trained with PPO (it has no critic)")  # fmt: skip
+    _fits("--warm-start-critic", critic, run, mine, WARM_START_CRITIC)
+    return WarmStart(path, critic)
+
+
+def _fits(option: str, path: Path, theirs: Training, mine: Training, names: tuple[str, ...]
+          ) -> None:  # fmt: skip
+    """Refuse a checkpoint whose run (``theirs``) differs from this one on a flag of
+    ``names`` (RunSetupError naming ``option``, the flag and both values)."""
 
     def side(training: Training, name: str) -> Any:
         field = name[2:].replace("-", "_")
-        return training.task if field == "task" else getattr(training.train, field)
+        if field == "task":
+            return training.task
+        return training.train.critic_kind if field == "critic" else getattr(training.train, field)
 
-    for name in WARM_START_SAME:
-        if name == "--rnn-hidden-dim" and mine.train.actor == "mlp":
+    recurrent = mine.train.critic_kind if "--critic" in names else mine.train.actor
+    for name in names:
+        if name == "--rnn-hidden-dim" and recurrent == "mlp":
             continue
         if side(theirs, name) != side(mine, name):
             raise RunSetupError(
-                f"--warm-start {path}: its run trained with {shown(name, side(theirs, name))}, "
+                f"{option} {path}: its run trained with {shown(name, side(theirs, name))}, "
                 f"this run with {shown(name, side(mine, name))}: a warm start needs the same "
                 "task, observation pieces and models"
             )
-    return path
+
+
+def _warm_start(runner, warm: WarmStart, setup: Setup, levels: bool) -> None:
+    """Load the warm start's actor and critic (and with ``levels`` its curriculum) into
+    ``runner``: a distilled student's action std, never trained, from the critic's run."""
+    loaded = check_rsl_rl(load_checkpoint(warm.actor, setup.warm_start_data), warm.actor)
+    actor = loaded.get("actor_state_dict") or loaded["student_state_dict"]
+    critic = loaded
+    if warm.critic is not None:
+        critic = check_rsl_rl(load_checkpoint(warm.critic, setup.warm_start_critic_data),
+                              warm.critic)  # fmt: skip
+        if "actor_state_dict" not in loaded:
+            std = {k: v for k, v in critic["actor_state_dict"].items()
+                   if k.startswith("distribution.")}  # fmt: skip
+            actor = actor | std
+    state = {"iter": 0, "actor_state_dict": actor, "critic_state_dict": critic["critic_state_dict"],
+             "env_state": loaded.get("env_state")}  # fmt: skip
+    runner.load(str(warm.actor), {"actor": True, "critic": True}, state=state, env_state=levels)
+    if levels and runner.env.core.terrain_map is not None:
+        runner.env.core.reset()  # every env restarts on the warm start's level
 
 
 def shown(option: str, value: Any) -> str:
@@ -321,9 +374,12 @@ def train(args, given: frozenset[str] | None = None) -> Path:
     distributed.join(group, args.run.dist_timeout)
     try:
         distributed.check_same_settings(group, run_settings(args))
-        checkpoint, args = _train(args, group, clock)
+        checkpoint, args, teacher = _train(args, group, clock)
         if args.train.student_iterations:
-            checkpoint, _ = _train(student_training(args), group, time.perf_counter())
+            checkpoint, args, teacher = _train(student_training(args), group, time.perf_counter())
+        if args.train.finetune_iterations:  # a student's, distilled just now or resumed
+            stage = finetune_training(args, checkpoint, teacher.path, teacher.args)
+            checkpoint, *_ = _train(stage, group, time.perf_counter())
         return checkpoint
     finally:
         distributed.leave()
@@ -342,10 +398,12 @@ class Setup(NamedTuple):
     """The teacher of a distillation."""
     teacher_data: bytes | None
     """Its checkpoint's bytes, read by rank 0 (None in a single process)."""
-    warm_start: Path | None = None
-    """The checkpoint whose actor and critic a new run starts from (--warm-start)."""
+    warm_start: WarmStart | None = None
+    """The checkpoints whose actor and critic a new run starts from (--warm-start)."""
     warm_start_data: bytes | None = None
-    """Its bytes, read by rank 0 (None in a single process)."""
+    """The actor's checkpoint's bytes, read by rank 0 (None in a single process)."""
+    warm_start_critic_data: bytes | None = None
+    """The critic's (--warm-start-critic), likewise."""
 
 
 def _claim_run(args: Training, group: distributed.Group, stack: contextlib.ExitStack) -> Setup:
@@ -380,14 +438,17 @@ def _claim_run(args: Training, group: distributed.Group, stack: contextlib.ExitS
         "args": record_of(args),
         "resume": resume and [str(resume[0]), resume[1]],
         "teacher": teacher and [str(teacher.path), record_of(teacher.args)],
-        "warm_start": warm and str(warm),
+        "warm_start": warm and str(warm.actor),
+        "warm_start_critic": warm and warm.critic and str(warm.critic),
     }
     shared = distributed.broadcast_json(group, sent if group.main else None)
     files = []
     for found, key in ((resume and resume[0], "resume"), (teacher and teacher.path, "teacher"),
-                       (warm, "warm_start")):  # fmt: skip
+                       (warm and warm.actor, "warm_start"),
+                       (warm and warm.critic, "warm_start_critic")):  # fmt: skip
         data = found.read_bytes() if group.main and found else None
         files.append(distributed.broadcast_bytes(group, data) if shared[key] else None)
+    critic = shared["warm_start_critic"]
     return Setup(
         _received(shared["args"]),
         shared["resume"] and (Path(shared["resume"][0]), int(shared["resume"][1])),
@@ -395,8 +456,9 @@ def _claim_run(args: Training, group: distributed.Group, stack: contextlib.ExitS
         shared["teacher"] and Teacher(Path(shared["teacher"][0]),
                                       _received(shared["teacher"][1])),
         files[1],
-        shared["warm_start"] and Path(shared["warm_start"]),
+        shared["warm_start"] and WarmStart(Path(shared["warm_start"]), critic and Path(critic)),
         files[2],
+        files[3],
     )  # fmt: skip
 
 
@@ -406,8 +468,10 @@ def _received(record: dict) -> Training:
                                       if k not in ("schema", "trainer")})  # fmt: skip
 
 
-def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path, Training]:
-    """One run (a stage): returns its last checkpoint and the training it ran."""
+def _train(args: Training, group: distributed.Group, clock: float
+           ) -> tuple[Path, Training, Teacher | None]:  # fmt: skip
+    """One run (a stage): returns its last checkpoint, the training it ran and its teacher
+    (a distillation's)."""
     say = print if group.main else lambda *_, **__: None  # rank 0 speaks for the group
     with contextlib.ExitStack() as stack:  # rank 0 holds the lock until the run ends
         setup = _claim_run(args, group, stack)
@@ -444,10 +508,11 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
                 if levels and env.core.terrain_map is not None:
                     env.core.reset()  # every env restarts on its teacher's level
                 say(f"distilling the teacher {teacher.path}")
-            if setup.warm_start is not None:  # its models; this run's optimizer and curriculum
-                runner.load(str(setup.warm_start), {"actor": True, "critic": True},
-                            data=setup.warm_start_data, env_state=False)  # fmt: skip
-                say(f"warm start from {setup.warm_start}")
+            if setup.warm_start is not None:  # its models; this run's optimizer
+                _warm_start(runner, setup.warm_start, setup, args.train.warm_start_levels)
+                critic = setup.warm_start.critic
+                say(f"warm start from {setup.warm_start.actor}"
+                    + (f", its critic from {critic}" if critic else ""))  # fmt: skip
         else:  # every rank loads rank 0's file
             runner.load(str(resume[0]), data=setup.resume_data)
             if env.core.terrain_map is not None:
@@ -467,7 +532,7 @@ def _train(args: Training, group: distributed.Group, clock: float) -> tuple[Path
         if args.run.export and group.main:
             jit_path, onnx_path = export_policy(runner, log_dir / "exported")
             print(f"[rwalk] exported {jit_path} and {onnx_path} (layout: policy.json)")
-    return checkpoint, args
+    return checkpoint, args, teacher
 
 
 def _stages(args: Training, runner, say) -> list[tuple[int, Callable[[int], None]]]:
