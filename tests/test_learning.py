@@ -400,6 +400,20 @@ def test_one_command_fine_tunes_its_student_with_ppo_and_the_teachers_critic(tmp
     assert play.play(["--checkpoint", str(finetune / "model_1.pt"), *PLAY])[0].episodes == 2
 
 
+def test_a_distilled_student_resumed_runs_its_fine_tune_when_it_ends(teacher, tmp_path):
+    folder = tmp_path / "student"
+    flags = [*TINY, "--distill", str(teacher), "--finetune-iterations", "1"]
+    train.main([*flags, "--max-iterations", "1", "--log-dir", str(folder)])
+    finetune = folder / "finetune"  # a --distill run's: in its own folder
+    assert json.loads((finetune / "config.json").read_text())["train"]["warm_start"] == str(
+        folder / "model_0.pt")  # fmt: skip
+    shutil.rmtree(finetune)  # as if stopped before its fine-tune
+    train.main(["--resume", str(folder), "--max-iterations", "2"])
+    assert json.loads((finetune / "config.json").read_text())["train"]["warm_start"] == str(
+        folder / "model_1.pt")  # fmt: skip
+    assert [it for it, _ in checkpoint_files(finetune)] == [0]
+
+
 def test_a_warm_start_may_keep_its_curriculum_levels(tmp_path):
     source = tmp_path / "source"
     train.main([*TINY, "--max-iterations", "1", "--log-dir", str(source)])

@@ -730,8 +730,8 @@ def student_training(teacher: Training) -> Training:
 def finetune_training(student: Training, checkpoint: Path, teacher: Path,
                       teacher_args: Training) -> Training:  # fmt: skip
     """The fine-tune stage of ``student`` (a distillation with --finetune-iterations): PPO on
-    its ``checkpoint`` in LOG_DIR/finetune (LOG_DIR: where the one command's teacher is, or
-    the student's folder of a --distill run) for --finetune-iterations iterations, the student
+    its ``checkpoint`` in LOG_DIR/finetune (LOG_DIR: the one command's, where its teacher
+    is; else the student's own folder) for --finetune-iterations iterations, the student
     as the actor with its curriculum levels, the critic and action std of its ``teacher``
     checkpoint (whose run is ``teacher_args``), in the student's world with its reward and
     pieces, at --finetune-learning-rate, without symmetry or late stages."""
@@ -742,8 +742,8 @@ def finetune_training(student: Training, checkpoint: Path, teacher: Path,
         learning_rate=student.train.finetune_learning_rate, symmetry=False,
         nominal_physics_iterations=0, nominal_physics_keep=(), late_iterations=0,
     )  # fmt: skip
-    log_dir = Path(student.run.log_dir)
-    home = log_dir.parent if log_dir.name == "student" else log_dir
+    log_dir, teacher_dir = Path(student.run.log_dir), Path(student.train.distill)
+    home = teacher_dir if log_dir == teacher_dir / "student" else log_dir  # the one command's
     run = dataclasses.replace(
         student.run, resume="", max_iterations=student.train.finetune_iterations,
         log_dir=str(home / "finetune"), run_name=f"{student.run.run_name or home.name}-finetune",
