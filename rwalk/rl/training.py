@@ -243,9 +243,10 @@ def _fits(option: str, path: Path, theirs: Training, mine: Training, names: tupl
             )
 
 
-def _warm_start(runner, warm: WarmStart, setup: Setup, levels: bool) -> None:
+def _warm_start(runner, setup: Setup, levels: bool) -> None:
     """Load the warm start's actor and critic (and with ``levels`` its curriculum) into
     ``runner``: a distilled student's action std, never trained, from the critic's run."""
+    warm = setup.warm_start
     loaded = check_rsl_rl(load_checkpoint(warm.actor, setup.warm_start_data), warm.actor)
     actor = loaded.get("actor_state_dict") or loaded["student_state_dict"]
     critic = loaded
@@ -256,7 +257,7 @@ def _warm_start(runner, warm: WarmStart, setup: Setup, levels: bool) -> None:
             std = {k: v for k, v in critic["actor_state_dict"].items()
                    if k.startswith("distribution.")}  # fmt: skip
             actor = actor | std
-    state = {"iter": 0, "actor_state_dict": actor, "critic_state_dict": critic["critic_state_dict"],
+    state = {"actor_state_dict": actor, "critic_state_dict": critic["critic_state_dict"],
              "env_state": loaded.get("env_state")}  # fmt: skip
     runner.load(str(warm.actor), {"actor": True, "critic": True}, state=state, env_state=levels)
     if levels and runner.env.core.terrain_map is not None:
@@ -509,7 +510,7 @@ def _train(args: Training, group: distributed.Group, clock: float
                     env.core.reset()  # every env restarts on its teacher's level
                 say(f"distilling the teacher {teacher.path}")
             if setup.warm_start is not None:  # its models; this run's optimizer
-                _warm_start(runner, setup.warm_start, setup, args.train.warm_start_levels)
+                _warm_start(runner, setup, args.train.warm_start_levels)
                 critic = setup.warm_start.critic
                 say(f"warm start from {setup.warm_start.actor}"
                     + (f", its critic from {critic}" if critic else ""))  # fmt: skip
