@@ -188,7 +188,10 @@ class Curriculum:
 
     def load_checkpoint(self, state: dict[str, Tensor]) -> str | None:
         """Go on from a checkpoint's ``checkpoint()``: each env's next start is on its
-        saved level. Returns why the state was not used (another number of envs), else
+        saved level. A checkpoint of another number of envs gives each env the level of a
+        saved env on its kind of tile (env j of kind k = j mod K takes the saved envs of
+        kind k in turn: a subset, or each repeated), so the curriculum's levels per kind
+        carry over. Returns a line for the log where the number of envs differed, else
         None.
 
         Raises:
@@ -202,11 +205,19 @@ class Curriculum:
                 f"terrain_level must be an integer tensor, got {type(saved).__name__} "
                 f"{getattr(saved, 'dtype', '')}".rstrip()
             )
+        mine, theirs, kinds = self.terrain_level.numel(), saved.numel(), len(self.levels.kinds)
+        note = None
         if saved.shape != self.terrain_level.shape:
-            return (
-                f"terrain levels of {saved.numel()} envs, this run has "
-                f"{self.terrain_level.numel()}: the curriculum starts again at the start level"
-            )
+            if saved.dim() != 1 or theirs < kinds:
+                return (f"terrain levels of shape {tuple(saved.shape)}, this run has "
+                        f"{mine} envs on {kinds} kinds of tile: the curriculum starts again "
+                        f"at the start level")  # fmt: skip
+            env = torch.arange(mine)
+            kind = env % kinds
+            per_kind = (theirs - kind + kinds - 1) // kinds  # saved envs of each env's kind
+            saved = saved[kind + kinds * ((env // kinds) % per_kind)]
+            note = (f"terrain levels of {theirs} envs, this run has {mine}: each env starts "
+                    f"on the level of a saved env on its kind of tile")  # fmt: skip
         self.terrain_level.copy_(saved.clamp(0, self.levels.levels - 1))
         self.reviewing.zero_()
-        return None
+        return note

@@ -352,3 +352,19 @@ def test_checkpoints_carry_the_curriculum(tmp_path):
     assert second.env.core.terrain_level.tolist() == [0] * 8
     second.load(str(tmp_path / "model_0.pt"))
     assert second.env.core.terrain_level.tolist() == list(range(8))
+
+
+def test_levels_of_another_number_of_envs_carry_over_by_kind_of_tile():
+    saved = {"terrain_level": torch.tensor([1, 2, 3, 0, 2])}  # 5 envs on 4 kinds
+    more = Core(config(), 10).curriculum
+    note = more.load_checkpoint(saved)
+    # env j (kind j % 4) takes the saved envs of its kind in turn: kind 0 has saved envs
+    # 0 and 4, kinds 1-3 one each
+    assert more.terrain_level.tolist() == [1, 2, 3, 0, 2, 2, 3, 0, 1, 2]
+    assert "5 envs, this run has 10" in note
+    fewer = Core(config(), 3).curriculum
+    assert fewer.load_checkpoint(saved) is not None
+    assert fewer.terrain_level.tolist() == [1, 2, 3]  # the first ones
+    too_few = Core(config(), 4).curriculum
+    note = too_few.load_checkpoint({"terrain_level": torch.tensor([3, 3])})  # no kind 2, 3
+    assert "starts again at the start level" in note and too_few.terrain_level.tolist() == [0] * 4

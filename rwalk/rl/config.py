@@ -203,8 +203,8 @@ class TrainConfig:
     come from this run (the student's teacher, for a PPO fine-tune of the student)"""
     warm_start_levels: bool = False
     """--warm-start: the curriculum starts where the warm start's checkpoint left it (each
-    env on its terrain level; with another number of envs, at the start level) instead of
-    at the start level"""
+    env on its terrain level; with another number of envs, on the level of one of its
+    envs on the same kind of tile) instead of at the start level"""
     critic: str = ""
     """the critic's model: mlp, gru or lstm ('': the actor's, --actor)"""
     gradient_length: int = 15
@@ -276,7 +276,8 @@ class TrainConfig:
     distill_levels: bool = False
     """--distill, --student-iterations: the student's curriculum starts where its teacher's
     checkpoint left it (each env on its teacher's terrain level; with another number of
-    envs, at the start level) instead of at the start level"""
+    envs, on the level of one of its envs on the same kind of tile) instead of at the
+    start level"""
     finetune_iterations: int = 0
     """--student-iterations or --distill: when the student is distilled, train it on with
     PPO for this many iterations in LOG_DIR/finetune (LOG_DIR: the teacher's with

@@ -166,8 +166,8 @@ class RslRlVecEnv(VecEnv):
         return self.core.curriculum.checkpoint()
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> str | None:
-        """Go on from a checkpoint's ``state_dict()``; returns why it could not (another
-        number of envs), else None.
+        """Go on from a checkpoint's ``state_dict()``; returns a line for the log where it
+        was of another number of envs (``Curriculum.load_checkpoint``), else None.
 
         Raises:
             ValueError: naming the field, if the state is not what ``state_dict`` writes.
