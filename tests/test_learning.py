@@ -165,6 +165,14 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
         (["--teacher", "--student-actor", "cnn"], "--student-actor must be one of"),
         (["--student-iterations", "5"], "--student-iterations needs --teacher"),
         (["--distill-levels"], "--distill-levels needs --distill or --student-iterations"),
+        (["--finetune-num-envs", "4"], "--finetune-num-envs 4 needs --finetune-iterations"),
+        (
+            [
+                *("--teacher", "--student-iterations", "1", "--finetune-iterations", "1"),
+                *("--finetune-num-envs", "-1"),
+            ],
+            "--finetune-num-envs must be >= 0, got -1",
+        ),
         (["--teacher-obs", "physics"], "--teacher-obs physics needs --teacher"),
         (
             ["--teacher", "--teacher-obs", "sensors"],
@@ -369,7 +377,8 @@ def test_one_command_fine_tunes_its_student_with_ppo_and_the_teachers_critic(tmp
     flags = [flag for flag in TINY if flag != "--no-export"]
     train.main([*flags, "--teacher", "--max-iterations", "2", "--student-iterations", "2",
                 "--rnn-hidden-dim", "16", "--finetune-iterations", "1",
-                "--finetune-learning-rate", "1e-12", "--log-dir", str(folder)])  # fmt: skip
+                "--finetune-learning-rate", "1e-12", "--finetune-num-envs", "4",
+                "--log-dir", str(folder)])  # fmt: skip
     student, teacher = folder / "student" / "model_1.pt", folder / "model_1.pt"
     assert f"warm start from {student}, its critic from {teacher}" in capsys.readouterr().out
     finetune = folder / "finetune"
@@ -381,6 +390,12 @@ def test_one_command_fine_tunes_its_student_with_ppo_and_the_teachers_critic(tmp
     assert record["critic_obs"] == json.loads((folder / "config.json").read_text())[
         "train"]["critic_obs"]  # fmt: skip
     assert record["warm_start_levels"] and record["finetune_iterations"] == 0
+    # on --finetune-num-envs envs, its settled-start pool in the student's proportion
+    tuned_run, taught_run = (json.loads((path / "config.json").read_text())
+                             for path in (finetune, folder / "student"))  # fmt: skip
+    assert (taught_run["num_envs"], tuned_run["num_envs"], record["finetune_num_envs"]) == (8, 4, 0)
+    pools = taught_run["env"]["settle_pool"], tuned_run["env"]["settle_pool"]
+    assert pools == (2, 1)
     # at a step of ~1e-12 the first iteration leaves the weights where the warm start put
     # them: the student's, with the teacher's std; the teacher's critic
     tuned, distilled = load_checkpoint(finetune / "model_0.pt"), load_checkpoint(student)

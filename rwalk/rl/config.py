@@ -287,6 +287,10 @@ class TrainConfig:
     fine-tune goes on with --resume LOG_DIR/finetune (docs/learning.md)"""
     finetune_learning_rate: float = 1e-4
     """--finetune-iterations: the fine-tune's first Adam step (adaptive on KL from there)"""
+    finetune_num_envs: int = 0
+    """--finetune-iterations: the fine-tune's number of envs (0: the student's --num-envs;
+    its settled-start pool scales with it, and each env starts on the level of one of the
+    student's on the same kind of tile)"""
 
     def __post_init__(self) -> None:
         require_choice(self, "actor", ACTORS)
@@ -296,12 +300,14 @@ class TrainConfig:
                              f"actor's), got {self.critic!r}")  # fmt: skip
         require_at_least(self, 1, "rnn_hidden_dim", "gradient_length")
         stage = () if self.nominal_physics_iterations is None else ("nominal_physics_iterations",)
-        require_at_least(self, 0, "student_iterations", "finetune_iterations", *stage)
+        require_at_least(self, 0, "student_iterations", "finetune_iterations", "finetune_num_envs",
+                         *stage)  # fmt: skip
         if self.nominal_physics_entropy_coef is not None:
             require_at_least(self, 0, "nominal_physics_entropy_coef")
         require_at_most(self, MAX_WIDTH, "rnn_hidden_dim")
         require_at_most(self, MAX_ITERATIONS, "gradient_length", "student_iterations",
                         "finetune_iterations", *stage)  # fmt: skip
+        require_at_most(self, MAX_ENVS, "finetune_num_envs")
         for name in self.nominal_physics_keep:
             if name not in PHYSICS_RANGES:
                 raise ValueError(f"--nominal-physics-keep names ranges of --env.randomization "
@@ -350,6 +356,9 @@ class TrainConfig:
             raise ValueError(f"--finetune-iterations {self.finetune_iterations} needs "
                              "--student-iterations or --distill: it fine-tunes a distilled "
                              "student")  # fmt: skip
+        if self.finetune_num_envs and not self.finetune_iterations:
+            raise ValueError(f"--finetune-num-envs {self.finetune_num_envs} needs "
+                             "--finetune-iterations: it sizes the fine-tune")  # fmt: skip
         obs = self.teacher_obs
         if not obs or not set(obs) <= set(SIMULATOR_PIECES) or len(set(obs)) != len(obs):
             raise ValueError(f"{show_flag('teacher_obs', obs)}: privileged pieces from "
@@ -735,9 +744,11 @@ def finetune_training(student: Training, checkpoint: Path, teacher: Path,
     is; else the student's own folder) for --finetune-iterations iterations, the student
     as the actor with its curriculum levels, the critic and action std of its ``teacher``
     checkpoint (whose run is ``teacher_args``), in the student's world with its reward and
-    pieces, at --finetune-learning-rate, without symmetry or late stages."""
+    pieces, at --finetune-learning-rate, without symmetry or late stages, on
+    --finetune-num-envs envs (its settled-start pool in the student's proportion)."""
     train = dataclasses.replace(
         student.train, distill="", distill_levels=False, finetune_iterations=0,
+        finetune_num_envs=0,
         warm_start=str(checkpoint), warm_start_critic=str(teacher), warm_start_levels=True,
         critic=teacher_args.train.critic_kind, critic_obs=teacher_args.train.critic_obs,
         learning_rate=student.train.finetune_learning_rate, symmetry=False,
@@ -749,7 +760,11 @@ def finetune_training(student: Training, checkpoint: Path, teacher: Path,
         student.run, resume="", max_iterations=student.train.finetune_iterations,
         log_dir=str(home / "finetune"), run_name=f"{student.run.run_name or home.name}-finetune",
     )  # fmt: skip
-    return resolved(dataclasses.replace(student, train=train, run=run))
+    envs, pool = student.train.finetune_num_envs or student.num_envs, student.env.settle_pool
+    if pool:
+        pool = min(MAX_ENVS, max(1, round(pool * envs / student.num_envs)))
+    env = dataclasses.replace(student.env, settle_pool=pool)
+    return resolved(dataclasses.replace(student, train=train, run=run, num_envs=envs, env=env))
 
 
 #: TrainConfig's fields whose default changed after runs were recorded without them (a
