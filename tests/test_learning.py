@@ -169,6 +169,13 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
         (
             [
                 *("--teacher", "--student-iterations", "1", "--finetune-iterations", "1"),
+                *("--finetune-num-envs", "1", "--num-steps-per-env", "2"),
+            ],
+            "--num-mini-batches must be <= --finetune-num-envs * --num-steps-per-env = 2, got 4",
+        ),
+        (
+            [
+                *("--teacher", "--student-iterations", "1", "--finetune-iterations", "1"),
                 *("--finetune-num-envs", "-1"),
             ],
             "--finetune-num-envs must be >= 0, got -1",

@@ -581,12 +581,13 @@ class Training(TrainingBase[Env]):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        frames = self.num_envs * self.train.num_steps_per_env
-        if self.train.num_mini_batches > frames:
-            raise ValueError(
-                f"--num-mini-batches must be <= --num-envs * --num-steps-per-env = {frames}, "
-                f"got {self.train.num_mini_batches}"
-            )
+        sizes = {"num_envs": self.num_envs, "finetune_num_envs": self.train.finetune_num_envs}
+        for name, envs in sizes.items():
+            frames = envs * self.train.num_steps_per_env
+            if envs and self.train.num_mini_batches > frames:  # (0: the fine-tune's own)
+                raise ValueError(f"--num-mini-batches must be <= {flag(name)} * "
+                                 f"--num-steps-per-env = {frames}, got "
+                                 f"{self.train.num_mini_batches}")  # fmt: skip
         if self.train.late_iterations is not None:  # else resolved() writes it out, then
             late_reward(self.train, self.env)  # checks: refused here, not at the stage's start
         kinds = self.env.terrain_levels.kinds if self.env.terrain_levels is not None else ()
