@@ -584,7 +584,7 @@ class Training(TrainingBase[Env]):
         sizes = {"num_envs": self.num_envs, "finetune_num_envs": self.train.finetune_num_envs}
         for name, envs in sizes.items():
             frames = envs * self.train.num_steps_per_env
-            if envs and self.train.num_mini_batches > frames:  # (0: the fine-tune's own)
+            if envs and self.train.num_mini_batches > frames:  # 0: no fine-tune of its own size
                 raise ValueError(f"--num-mini-batches must be <= {flag(name)} * "
                                  f"--num-steps-per-env = {frames}, got "
                                  f"{self.train.num_mini_batches}")  # fmt: skip
