@@ -44,7 +44,7 @@ from torch import Tensor
 
 from rwalk import checks
 from rwalk.config import EnvConfig
-from rwalk.constants import OBS_CONTACT, OBS_DIM, OBS_LINVEL, OBS_POS, OBS_QUAT
+from rwalk.constants import OBS_CONTACT, OBS_DIM, OBS_LINVEL, OBS_POS, OBS_QUAT, TORSO_BODY
 from rwalk.curriculum import Curriculum
 from rwalk.episodes import Episodes, StepResult
 from rwalk.observations import Observations, Sources
@@ -113,7 +113,9 @@ class Core:
         self.physics = PhysicsRandomizer(
             config.randomization, self.world.model, self.sim.batch, n, self.world.decimation
         )
-        self.pushes = PushSchedule(config.pushes, n, self.world.control_dt, self.sim.qvel)
+        torso = self.world.model.body(TORSO_BODY).id
+        self.pushes = PushSchedule(config.pushes, n, self.world.control_dt, self.sim.qvel,
+                                   self.sim.applied_force(torso))  # fmt: skip
         self.starts = Starts(config, self.world, self.sim, self.curriculum.origins,
                              self.physics_steps)  # fmt: skip
         self.obs = torch.zeros(n, OBS_DIM, dtype=torch.float64)

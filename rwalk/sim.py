@@ -69,6 +69,15 @@ class BatchedSim:
         self.rollout_seconds = 0.0
         """Wall time spent in rollouts so far (a counter for benchmarks). Seconds."""
 
+    def applied_force(self, body: int) -> np.ndarray:
+        """Live view of the force MuJoCo applies to ``body``'s centre of mass in each row
+        (``xfrc_applied[body, :3]``, world frame), part of the integration state: it
+        stays on through rollouts until changed; a reset row starts at zero.
+        Shape: (num_sims, 3). Newtons."""
+        below = mujoco.mjtState.mjSTATE_XFRC_APPLIED.value - 1  # the state's earlier parts
+        start = mujoco.mj_stateSize(self.model, below) + 6 * body
+        return self.state[:, start : start + 3]
+
     @property
     def num_threads(self) -> int:
         return self.batch.nthread

@@ -283,6 +283,7 @@ def test_the_late_speed_kernel_is_the_residual_tasks_own_and_written_out(
         (["--env.observation-noise.joint-vel", "0.5"], "observation_noise.joint_vel", 0.5),
         (["--env.terrain-levels.promote", "0.7"], "terrain_levels.promote", 0.7),
         (["--no-robust", "--env.pushes.speed", "0.1", "0.2"], "pushes.speed", (0.1, 0.2)),
+        (["--env.pushes.force", "0", "0.8"], "pushes.force", (0.0, 0.8)),
     ],
 )
 def test_a_nested_field_set_on_the_command_line_reaches_the_env(flags, field, value):
@@ -294,6 +295,10 @@ def test_a_nested_field_set_on_the_command_line_reaches_the_env(flags, field, va
     assert config == value
     if field == "reward_weights.stability":  # the term the core adds is weighed by it
         assert core.config.reward_weights.stability == -5.0
+    if field == "pushes.force":  # every env's steady force is in the new range
+        core.reset()
+        assert bool((core.pushes.force.norm(dim=-1) <= 0.8 + 1e-12).all())
+        assert bool(core.pushes.force.any())
     if field == "randomization.friction":  # every env's drawn friction is in the new range
         core.reset()
         drawn = core.physics.params[:, 0]
@@ -315,6 +320,8 @@ def test_a_flag_that_names_no_field_names_the_near_ones(capsys):
          "--env.randomization.friction has min > max"),
         (["--costs", "--env.costs.stumble", "-1"], "--env.costs.stumble is the size of a cost"),
         (["--costs", "--env.costs.stumble", "inf"], "--env.costs.stumble must be a finite number"),
+        (["--env.pushes.force", "0", "9"], "--env.pushes.force must be at most 5 N, got (0.0, 9"),
+        (["--env.pushes.force", "-1", "1"], "--env.pushes.force must be >= 0, got (-1.0, 1.0)"),
         (["--task", "adaptive_gait", "--env.bounds.step-height.low", "0.05"],
          "--env.bounds.step-height: low must be < high"),
         (["--task", "adaptive_gait", "--costs", "--late-tracking", "300"],
