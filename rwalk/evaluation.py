@@ -303,6 +303,27 @@ def evaluate(
         record: callable(step) called after every step (e.g. to grab a video frame).
         progress: callable(steps done, max_episode_steps), e.g. a ``Progress``.
     """
+    return summarise(name, env, first_episodes(env, seed, policy, record, progress))
+
+
+@dataclass(frozen=True)
+class FirstEpisodes:
+    """What each env's first episode did (``first_episodes``)."""
+
+    stats: dict[str, torch.Tensor]
+    """``rwalk.episodes``' log of each env's first episode, by key. Shape of each: (N,)."""
+    energy: torch.Tensor
+    """Servo energy of each first episode, joules / control step. Shape: (N,)."""
+
+
+def first_episodes(
+    env: BatchedEnv,
+    seed: int,
+    policy: Callable[[], torch.Tensor] | None = None,
+    record: Callable[[int], None] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> FirstEpisodes:
+    """Run one episode in every env of ``env`` (reset first; ``evaluate``'s arguments)."""
     core = env.core
     env.set_seed(seed)
     core.reset()
@@ -334,12 +355,24 @@ def evaluate(
                 break
             report(step + 1, limit)
     report(limit, limit)  # every episode has ended
+    return FirstEpisodes(first, energy)
+
+
+def summarise(
+    name: str, env: BatchedEnv, run: FirstEpisodes, rows: torch.Tensor | None = None
+) -> Evaluation:
+    """The ``Evaluation`` of the first episodes of the envs ``rows`` of ``env`` (a
+    boolean mask; None: every env)."""
+    first = run.stats if rows is None else {k: v[rows] for k, v in run.stats.items()}
+    energy = run.energy if rows is None else run.energy[rows]
+    n = len(energy)
     length = first["length"]
     errors = first["velocity_error"]
     contact = first.get("sum/contact_pattern", torch.full((n,), math.nan)) / length
     power = float((energy / length).mean())
     forward_velocity = float(first["forward_velocity"].mean())
-    weight = float(core.sim.model.body_mass.sum()) * -float(core.sim.model.opt.gravity[2])
+    model = env.core.sim.model
+    weight = float(model.body_mass.sum()) * -float(model.opt.gravity[2])
     return Evaluation(
         name=name,
         episodes=n,

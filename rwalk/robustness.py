@@ -33,10 +33,11 @@ from rwalk.config import EnvConfig
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.evaluation import (
     Evaluation,
-    evaluate,
     fall_interval,
+    first_episodes,
     load_policy,
     read_results,
+    summarise,
     task_of,
     trained_env,
 )
@@ -171,21 +172,34 @@ def run_condition(
     episodes: int,
     seed: int,
     config: Callable[..., EnvConfig],
+    by_kind: bool = False,
 ) -> list[Row]:
     """Every policy (None: the base gait, on the residual task) on the same paired episodes
     of one condition, each on an env its policy acts in (``config(trained=its record's
     env)``): an adaptive and a residual policy meet the same terrain, physics draws and
-    kicks from the same starts."""
+    kicks from the same starts. With ``by_kind``, on a map of several kinds of tile, after
+    the condition's rows one more per kind and policy, condition ``"NAME: KIND"``: the
+    same episodes, those of the envs on that kind (env i walks kind i mod the kinds)."""
     envs: dict[tuple[str, EnvConfig], BatchedEnv] = {}
-    rows = []
+    rows: list[Row] = []
+    by_name: dict[str, list[Row]] = {}  # the rows of each kind, every policy's in turn
     for label, checkpoint in policies.items():
         key = (task_of(checkpoint), config(trained=trained_env(checkpoint)))
         if key not in envs:
             envs[key] = BatchedEnv(episodes, key[1], seed=seed, task=key[0])
         env = envs[key]
         policy = None if checkpoint is None else load_policy(checkpoint, env)
-        rows.append(Row(name, label, evaluate(label, env, seed, policy)))
-    return rows
+        run = first_episodes(env, seed, policy)
+        rows.append(Row(name, label, summarise(label, env, run)))
+        levels = key[1].terrain_levels
+        if by_kind and levels is not None and len(levels.kinds) > 1:
+            kind = env.core.curriculum.terrain_kind
+            for index, kind_name in enumerate(levels.kinds):
+                on = kind == index
+                if bool(on.any()):
+                    row = Row(f"{name}: {kind_name}", label, summarise(label, env, run, on))
+                    by_name.setdefault(row.condition, []).append(row)
+    return rows + [row for kind_rows in by_name.values() for row in kind_rows]
 
 
 #: The floors of a policy: nominal (falls, per-step error, |bias|), and on a held-out

@@ -206,6 +206,27 @@ def test_robustness_runs_paired_episodes_and_writes_its_rows(tmp_path, capsys):
     assert "| new maps | base gait |" in capsys.readouterr().out
 
 
+def test_robustness_splits_a_map_s_rows_by_kind_of_tile(tmp_path, capsys):
+    out = tmp_path / "r.json"
+    robustness_runner.main(
+        ["--episodes", "8", "--max-steps", "30", "--settle-steps", "5", "--conditions",
+         "new maps", "pushes", "--by-kind", "--json", str(out)]
+    )  # fmt: skip
+    rows = robustness.read_rows(out)
+    kinds = TerrainLevels().kinds
+    assert [r.condition for r in rows] == (
+        ["new maps"] + [f"new maps: {kind}" for kind in kinds] + ["pushes"]  # pushes: no map
+    )
+    whole, parts = rows[0].evaluation, [r.evaluation for r in rows[1:-1]]
+    assert [p.episodes for p in parts] == [2] * len(kinds)  # env i walks kind i mod 4
+    # the kinds' rows split the whole row's episodes: the falls add up, the means average
+    assert sum(round(p.fall_rate * 2) for p in parts) == round(whole.fall_rate * 8)
+    for field in ("velocity_error", "velocity_bias", "forward_velocity", "mean_return"):
+        mean = sum(getattr(p, field) for p in parts) / len(parts)
+        assert mean == pytest.approx(getattr(whole, field), rel=1e-12), field
+    assert "| new maps: stones | base gait |" in capsys.readouterr().out
+
+
 def test_robustness_refuses_outputs_it_could_not_write_before_any_row(
     tmp_path, monkeypatch, capsys
 ):

@@ -60,6 +60,10 @@ class RobustnessArgs:
     """write the bar chart here (PNG)"""
     tables: Path | None = None
     """only print the table (and --plot) of a written --json"""
+    by_kind: bool = False
+    """also a row per kind of tile of a condition on a map of several (new maps), named
+    'new maps: stones': the same episodes, those of the envs on that kind (env i walks
+    kind i mod the kinds)"""
 
     def __post_init__(self) -> None:
         require_at_least(self, 1, "episodes", "max_steps")
@@ -130,12 +134,14 @@ def main(argv: list[str] | None = None) -> None:
                     name, args.map_level, args.max_steps, args.settle_steps, trained
                 )
 
-            rows += run_condition(name, policies, args.episodes, args.seed, config)
-            print(table([r for r in rows if r.condition == name]).split("\n", 2)[2], flush=True)
+            new = run_condition(name, policies, args.episodes, args.seed, config, args.by_kind)
+            rows += new
+            print(table(new).split("\n", 2)[2], flush=True)
         if args.json:
             data = {
                 "episodes": args.episodes, "seed": args.seed, "map_level": args.map_level,
                 "max_steps": args.max_steps, "settle_steps": args.settle_steps,
+                "by_kind": args.by_kind,
                 "conditions": {name: CONDITIONS[name][0] for name in args.conditions},
                 "checkpoints": {label: str(path) for label, path in args.checkpoints.items()},
                 "rows": [dataclasses.asdict(r) for r in rows],
