@@ -11,6 +11,8 @@ own task, the base gait on the residual task's). The conditions, floors, table a
 ``rwalk.robustness``'s: nominal, new maps, rougher ground, low and high friction,
 payload, weak servos, pushes and latency. Prints one table per condition with
 each policy's floors, writes every row to --json and, with --plot, a bar chart.
+With --by-kind, the rows of the new maps are followed by one per kind of tile
+('new maps: stones'), of the same episodes.
 """
 
 from __future__ import annotations
