@@ -107,7 +107,9 @@ RECIPE_FLAGS = [
     "--env.shaping.sigma", "0.02", "--terrain-kinds", "flat", "rough", "slopes", "steps",
     "stones", "--max-iterations", "420", "--late-iterations", "0", "--teacher", "--teacher-obs",
     "physics", "heights_under_feet", "--student-iterations", "160", "--student-actor", "gru",
-    "--distill-levels",
+    "--distill-levels", "--env.randomization.kp-scale", "0.75", "1.15",
+    "--env.randomization.force-scale", "0.75", "1.15", "--env.randomization.latency", "0", "3",
+    "--env.residual-scale", "0.03",
 ]  # fmt: skip
 
 
@@ -117,6 +119,21 @@ def test_the_default_training_is_the_recipe_that_its_flags_give():
     assert default.env == given.env
     assert (default.train, default.run) == (given.train, given.run)
     assert default.train.nominal_physics_iterations == 140  # a third of 420
+
+
+def test_a_flag_sets_a_field_the_recipe_sets():
+    default = train.parse_args(SMALL)
+    assert default.env.residual_scale == 0.03 and default.env.randomization.latency == (0, 3)
+    wide = (0.75, 1.15)
+    assert default.env.randomization.kp_scale == default.env.randomization.force_scale == wide
+    given = train.parse_args(
+        [*SMALL, "--env.residual-scale", "0.02", "--env.randomization.latency", "0", "2"]
+    )
+    assert given.env.residual_scale == 0.02 and given.env.randomization.latency == (0, 2)
+    assert given.env.randomization.kp_scale == wide  # the recipe's, not given
+    plain = train.parse_args([*SMALL, "--recipe", "plain"])
+    assert plain.env.residual_scale == 0.02 and plain.env.randomization.latency == (0, 2)
+    assert plain.env.randomization.kp_scale == (0.85, 1.15)
 
 
 @pytest.mark.parametrize("flags", [["--no-teacher"], ["--distill", "logs/teacher"]])

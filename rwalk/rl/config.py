@@ -505,9 +505,10 @@ class Preset:
     recipe: str = "precise"
     """how the task trains in the robust world: precise (residual_walk: a teacher that reads
     the drawn physics and the ground under its feet, then its blind GRU student, with the
-    gait costs and the speed kernel: Task.recipe, docs/learning.md; each of its values a
-    flag that may be set) or plain (PPO alone, the late kernel); a task without a recipe
-    (adaptive_gait) and --no-robust train plain"""
+    gait costs, the speed kernel, wider servo and latency ranges and actions of +-30 mm:
+    Task.recipe, docs/learning.md; each of its values a flag that may be set) or plain
+    (PPO alone, the late kernel); a task without a recipe (adaptive_gait) and --no-robust
+    train plain"""
 
     def __post_init__(self) -> None:
         get_task(self.task)  # ValueError listing the known tasks

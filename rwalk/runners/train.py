@@ -26,8 +26,9 @@ Every flag is a field of the training's configs (rwalk.rl.config.Training): the
 preset (--task, --robust/--no-robust, --costs, --recipe) picks the task, the world and,
 for residual_walk's robust world, the recipe (--recipe precise: a teacher that reads
 the physics and the ground under its feet, then its blind GRU student in
-LOG_DIR/student, with the gait costs and the speed kernel; each of its values a flag
-that may be set; rwalk.tasks.base.Recipe); every
+LOG_DIR/student, with the gait costs and the speed kernel, servos drawn from 0.75-1.15
+of their gain and torque, 0-3 substeps of latency and actions of +-30 mm; each of its
+values a flag that may be set; rwalk.tasks.base.Recipe); every
 field of the task's env config is a flag of its own (--env.costs.clearance 3000,
 --env.randomization.friction 0.5 1.3, --env.terrain-levels.demote 0.3; short names
 for common ones: --settle-steps, --command-range, --terrain-kinds, ...); rsl-rl's

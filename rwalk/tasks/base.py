@@ -51,6 +51,11 @@ class Recipe:
     """``TrainConfig`` fields (--teacher: ``{"teacher": True}``)."""
     max_iterations: int
     """--max-iterations (the teacher's, where ``train`` trains one)."""
+    randomization: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    """``Randomization`` ranges that differ from the robust world's
+    (--env.randomization.latency 0 3: ``{"latency": (0, 3)}``)."""
+    residual_scale: float | None = None
+    """--env.residual-scale (None: the env's own, the spec's)."""
 
     #: ``train``'s fields that make a teacher and its student: left out where the command
     #: line trains neither (--no-teacher, --distill), so that those flags work alone.
@@ -59,12 +64,15 @@ class Recipe:
 
     def env(self, env: EnvConfig) -> EnvConfig:
         """``env`` (a robust training's) as this recipe trains it: its gait costs (over
-        --costs' defaults), shaping and terrain kinds."""
+        --costs' defaults), shaping, terrain kinds, physics ranges and action scale."""
         costs = dataclasses.replace(env.costs or GaitCosts(), **self.costs)
         shaping = Shaping(**self.shaping) if self.shaping else env.shaping
         levels = dataclasses.replace(env.terrain_levels or TerrainLevels(),
                                      kinds=self.terrain_kinds)  # fmt: skip
-        return dataclasses.replace(env, costs=costs, shaping=shaping, terrain_levels=levels)
+        physics = dataclasses.replace(env.randomization, **self.randomization)
+        scale = env.residual_scale if self.residual_scale is None else self.residual_scale
+        return dataclasses.replace(env, costs=costs, shaping=shaping, terrain_levels=levels,
+                                   randomization=physics, residual_scale=scale)  # fmt: skip
 
     def train_fields(self, *, teacher: bool = True) -> dict[str, Any]:
         """``train``, without the teacher's and student's fields where not ``teacher``."""
