@@ -10,9 +10,9 @@ ranges are in ``rwalk.randomization`` and ``rwalk.levels``):
 - rougher: rough tiles 1.3 x the training's roughest (9.1 cm peak to peak), fresh seed;
 - low / high friction: 0.3 and 2.0 (training 0.5-1.3);
 - payload: +0.2 kg on the torso (training up to +0.12);
-- weak servos: gain and torque limit x 0.7 (training 0.85-1.15);
+- weak servos: gain and torque limit x 0.7 (training 0.85-1.15; the residual default 0.75-1.15);
 - pushes: 0.3 m/s kicks (0.24 N·s on the 0.8 kg robot) every 2 s (training up to 0.15 m/s);
-- latency: servo targets 4 substeps (16 ms) late (training up to 2).
+- latency: servo targets 4 substeps (16 ms) late (training up to 2; the residual default 3).
 
 Policies are evaluated without observation noise. Prints one table per
 condition with each row's speed error split into its bias and ripple and each
@@ -94,7 +94,7 @@ CONDITIONS: dict[str, tuple[str, Callable[[EnvConfig, int], EnvConfig]]] = {
     "high friction": ("friction 2.0 (training 0.5-1.3)", _physics(friction=(2.0, 2.0))),
     "payload": ("+0.2 kg on the torso (training -0.05..+0.12)", _physics(payload=(0.2, 0.2))),
     "weak servos": (
-        "servo gain and torque limit x 0.7 (training 0.85-1.15)",
+        "servo gain and torque limit x 0.7 (training 0.85-1.15; the residual default 0.75-1.15)",
         _physics(kp_scale=(0.7, 0.7), force_scale=(0.7, 0.7)),
     ),
     "pushes": (
@@ -103,7 +103,10 @@ CONDITIONS: dict[str, tuple[str, Callable[[EnvConfig, int], EnvConfig]]] = {
             base, pushes=Pushes(speed=(0.3, 0.3), interval=(2.0, 2.0))
         ),
     ),
-    "latency": ("servo targets 16 ms late (training up to 8 ms)", _physics(latency=(4, 4))),
+    "latency": (
+        "servo targets 16 ms late (training up to 8 ms; the residual default up to 12 ms)",
+        _physics(latency=(4, 4)),
+    ),
 }
 
 

@@ -5,6 +5,7 @@ import dataclasses
 import io
 import json
 import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -245,14 +246,24 @@ def test_a_recurrent_onnx_policy_carries_its_state(recurrent):
         session.run(None, {"obs": obs.numpy()})
 
 
-def test_a_recurrent_onnx_policy_runs_an_episode_of_the_gymnasium_env(recurrent):
+def test_a_recurrent_onnx_policy_runs_an_episode_of_the_gymnasium_env(recurrent, tmp_path):
     """The recurrent recipe of docs/environment.md, as written there (a short episode)."""
-    _, folder = recurrent
+    _, exported = recurrent
+    folder = tmp_path / "exported"  # a copy whose record says another residual scale
+    shutil.copytree(exported, folder)
+    layout = json.loads((folder / "policy.json").read_text())
+    layout["deploy"]["residual_scale"] = 0.03
+    (folder / "policy.json").write_text(json.dumps(layout))
     text = (ROOT / "docs" / "environment.md").read_text()
     section = text.split("## Running an exported policy", 1)[1].split("\n## ", 1)[0]
     _, code = re.findall(r"```python\n(.*?)```", section, re.DOTALL)
     code = code.replace('"logs/rwalk/student/exported"', repr(str(folder)))
-    code = code.replace("ResidualWalkEnv()", "ResidualWalkEnv(config=QUICK)")
-    namespace = {"QUICK": QUICK}
+    scale = 'residual_scale=layout["deploy"]["residual_scale"]'
+    assert f"ResidualWalkEnv({scale})" in code
+    code = code.replace(
+        f"ResidualWalkEnv({scale})", f"ResidualWalkEnv(config=replace(QUICK, {scale}))"
+    )
+    namespace = {"QUICK": QUICK, "replace": dataclasses.replace}
     exec(compile(code, "environment.md recurrent", "exec"), namespace)
     assert namespace["done"] and namespace["state"]["h_in"].any()
+    assert namespace["env"].core.config.residual_scale == 0.03  # the policy's, not the spec's
