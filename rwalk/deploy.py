@@ -67,7 +67,7 @@ from rwalk.kinematics import LegGeometry, leg_ik
 SENSOR_LAYOUT = OBSERVATION_SENSORS
 #: The pieces a deployed policy may read (the rest need the simulator: privileged).
 DEPLOYABLE = ("observation", "observation_from_start", "phase", "lateral_offset",
-              "cycle_speed", "command")  # fmt: skip
+              "cycle_speed", "command", "last_action")  # fmt: skip
 #: The tasks whose policies it runs.
 TASKS = ("residual_walk", "adaptive_gait")
 #: The gaits this runtime runs, by policy.json's ``deploy.runtime``: a fixed trot from its
@@ -200,6 +200,9 @@ class Controller:
             raise ValueError(f"{fields.where}: input.pieces {_show(self.pieces)} make {built} "
                              f"values; input.shape[1] says {self.width}")  # fmt: skip
         self._command: float | None = None
+        self.last_action = np.zeros(gait.action_dim)
+        """The last action the policy sent, clipped (zero from ``reset`` on: the piece
+        ``last_action``); a held step sends none and keeps it."""
         self.held = False
         """Whether the last ``step`` returned held targets (bad readings or outputs)."""
         self._started = False
@@ -256,6 +259,7 @@ class Controller:
         self.slot = 0
         self.state = [np.zeros(shape, dtype=np.float32) for shape in self.state_shapes]
         self._fresh, self._started, self.held = True, True, False
+        self.last_action = np.zeros(self.gait.action_dim)
         self.safe = self.gait.joints(None)
         return self.safe
 
@@ -292,6 +296,7 @@ class Controller:
             return self._hold(f"a non-finite policy output {action[0].tolist()}")
         self.state = state
         action = np.minimum(np.maximum(action[0].astype(np.float64), -1.0), 1.0)
+        self.last_action = action
         self.safe = self.gait.joints(action, self._command)
         self.held = False
         return self.safe
@@ -317,6 +322,8 @@ class Controller:
                 parts.append([obs[OBS_POS.start + 1] - self.y0])
             elif name == "cycle_speed":
                 parts.append([self.recent_sum / self.window])
+            elif name == "last_action":
+                parts.append(self.last_action)
             else:  # command
                 if self.command is None:
                     raise ValueError("the policy reads a command: set controller.command "
@@ -547,7 +554,12 @@ def _check_input(fields: _Fields, layout: dict) -> tuple[list[str], int]:
 def _input_width(pieces: list[str], gait: TableGait | AdaptiveGait) -> int:
     """How many values ``Controller.policy_input`` builds for these pieces."""
     spec = OBS_DIM + len(gait.observation())
-    sizes = {"observation": spec, "observation_from_start": spec, "phase": 2}
+    sizes = {
+        "observation": spec,
+        "observation_from_start": spec,
+        "phase": 2,
+        "last_action": gait.action_dim,
+    }
     return sum(sizes.get(name, 1) for name in pieces)
 
 

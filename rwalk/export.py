@@ -91,7 +91,10 @@ def task_catalog(task) -> dict[str, tuple[int, str]]:
 
 
 def policy_input(
-    obs: np.ndarray, info: Mapping[str, Any], pieces: Sequence[str] = DEFAULT_PIECES
+    obs: np.ndarray,
+    info: Mapping[str, Any],
+    pieces: Sequence[str] = DEFAULT_PIECES,
+    last_action: np.ndarray | None = None,
 ) -> np.ndarray:
     """One input row of an exported policy, from the Gymnasium env's ``obs`` and ``info``.
 
@@ -102,6 +105,9 @@ def policy_input(
             ``lateral_offset`` in m, ``target_velocity`` in m/s and ``start_position``
             (x0, y0) in m, where ``pieces`` need them).
         pieces: the export's layout (``policy.json``'s ``pieces`` names).
+        last_action: the action sent at the step before (zeros after ``reset``), where
+            ``pieces`` hold ``last_action``: (12,), or (16,) with the adaptive task's obs;
+            clipped to [-1, 1] as the env clips it.
 
     Returns:
         Shape: (D,) float32 (68 for the default pieces); stack rows for a batch.
@@ -124,6 +130,9 @@ def policy_input(
             local[0:2] -= np.asarray(info["start_position"], dtype=np.float64)
             parts.append(local.astype(np.float32))
             continue
+        if name == "last_action":
+            parts.append(_last_action(last_action, ACTION_DIM + obs.shape[0] - OBS_DIM))
+            continue
         key = INFO_KEYS[name]
         if key not in info:
             raise KeyError(f"info has no {key!r} (keys: {sorted(info)}); the policy reads it")
@@ -134,6 +143,17 @@ def policy_input(
         else:
             parts.append(np.array([value], dtype=np.float32))
     return np.concatenate(parts)
+
+
+def _last_action(action: np.ndarray | None, width: int) -> np.ndarray:
+    """The piece ``last_action`` of ``policy_input``: ``action`` checked, then clipped."""
+    if action is None:
+        raise ValueError("the policy reads its last action: pass last_action= (zeros after reset)")
+    row = np.asarray(action, dtype=np.float64)
+    if row.shape != (width,) or not np.isfinite(row).all():
+        raise ValueError(f"last_action must be {width} finite numbers, got shape {row.shape}: "
+                         f"{row.ravel()[:width].tolist()!r}")  # fmt: skip
+    return np.clip(row, -1.0, 1.0).astype(np.float32)
 
 
 class _GruOnnx(torch.nn.Module):

@@ -11,15 +11,19 @@ from pathlib import Path
 import numpy as np
 
 #: The policies exported, by folder: an MLP and a GRU of the residual task's robust run
-#: (observation from start), a commanded GRU of the adaptive task ("target" actions) and a
-#: commanded MLP of it whose gait follows the speed's schedule ("schedule" actions).
+#: (observation from start; the GRU also reads its last action), a commanded GRU of the
+#: adaptive task ("target" actions) and a commanded MLP of it whose gait follows the
+#: speed's schedule ("schedule" actions) and that reads its last action (16 values).
 POLICIES = {
     "mlp": {"actor": "mlp"},
-    "gru": {"actor": "gru"},
+    "gru": {"actor": "gru",
+            "policy_obs": ("observation_from_start", "phase", "lateral_offset", "last_action")},
     "adaptive": {"actor": "gru", "task": "adaptive_gait", "command_range": (0.05, 0.25),
                  "gait_action": "target"},
     "schedule": {"actor": "mlp", "task": "adaptive_gait", "command_range": (0.05, 0.25),
-                 "gait_action": "schedule"},
+                 "gait_action": "schedule",
+                 "policy_obs": ("observation_from_start", "phase", "lateral_offset", "command",
+                                "last_action")},
 }  # fmt: skip
 #: The readings of the starts (a file beside the folders): env i's sensors after reset.
 READINGS = "readings.npy"

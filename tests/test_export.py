@@ -187,6 +187,28 @@ def test_policy_input_builds_the_adaptive_policy_group_with_a_command():
         batch.step(torch.from_numpy(action)[None])
 
 
+def test_policy_input_reads_the_last_action_as_the_env_does():
+    from rwalk import ResidualWalkEnv
+
+    env = ResidualWalkEnv()
+    obs, info = env.reset(seed=3)
+    pieces = ("observation", "phase", "lateral_offset", "last_action")
+    sent = np.zeros(12, dtype=np.float32)  # after reset: the base gait, no action yet
+    for action in np.random.default_rng(0).uniform(-1.5, 1.5, (3, 12)).astype(np.float32):
+        row = policy_input(obs, info, pieces, last_action=sent)
+        expected = env.unwrapped.core.piece("last_action")[0].numpy().astype(np.float32)
+        np.testing.assert_array_equal(row[68:], expected)
+        obs, *_, info = env.step(action)
+        sent = action
+    assert np.abs(row[68:]).max() == 1.0 and np.abs(sent).max() > 1.0  # clipped, as the env
+    with pytest.raises(ValueError, match="pass last_action"):
+        policy_input(obs, info, pieces)
+    with pytest.raises(ValueError, match=r"12 finite numbers, got shape \(16,\)"):
+        policy_input(obs, info, pieces, last_action=np.zeros(16))
+    with pytest.raises(ValueError, match=r"12 finite numbers.*nan"):
+        policy_input(obs, info, pieces, last_action=np.full(12, np.nan))
+
+
 def test_the_observation_from_the_start_reads_the_start_from_info():
     from rwalk import ResidualWalkEnv
 

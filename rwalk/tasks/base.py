@@ -174,8 +174,17 @@ class Task:
     # ------------------------------------------------------------ declarations
     @classmethod
     def pieces(cls) -> dict[str, ObsPiece]:
-        """Every named observation piece of this task (the views choose from these)."""
-        return dict(COMMON_PIECES)
+        """Every named observation piece of this task (the views choose from these):
+        COMMON_PIECES and ``last_action``, the policy's own last command (the one a
+        servo delay still holds in flight), exact: a robot knows what it sent."""
+        last_action = ObsPiece(
+            cls.action_dim,
+            lambda s: s.task.action,
+            "the policy's action of the last step, checked and clipped (zero at an episode's "
+            "start)",
+            mirror=cls.action_mirror(),
+        )
+        return {**COMMON_PIECES, "last_action": last_action}
 
     @classmethod
     def extras_for(cls, config: EnvConfig) -> tuple[str, ...]:
