@@ -91,7 +91,7 @@ MAX_SUBSTEPS = 1000
 MAX_PERIOD = 20_000
 #: Most control periods of the cycle-speed window (30).
 MAX_CYCLE_STEPS = 100_000
-#: Widest policy input and most pieces (68 to 74 values in 3 to 5 pieces).
+#: Widest policy input and most pieces (68 to 90 values in 3 to 6 pieces).
 MAX_INPUT_WIDTH = 4096
 MAX_PIECES = 16
 #: Most layers and units of a recurrent state (rwalk-train's: 1 layer of at most 4096 units).
