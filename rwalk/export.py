@@ -111,6 +111,10 @@ def policy_input(
 
     Returns:
         Shape: (D,) float32 (68 for the default pieces); stack rows for a batch.
+
+    Raises:
+        ValueError: for ``cycle_speed``, a window over past steps that ``rwalk.deploy``
+            keeps and one ``obs`` does not.
     """
     obs = np.asarray(obs, dtype=np.float32)
     if obs.shape not in ((OBS_DIM,), (OBS_DIM + 4,)):
@@ -133,6 +137,10 @@ def policy_input(
         if name == "last_action":
             parts.append(_last_action(last_action, ACTION_DIM + obs.shape[0] - OBS_DIM))
             continue
+        if name == "cycle_speed":
+            raise ValueError("the piece 'cycle_speed' averages the speed over the last gait "
+                             "cycle, which one obs does not hold: run the export with "
+                             "rwalk.deploy.Controller, which keeps that window")  # fmt: skip
         key = INFO_KEYS[name]
         if key not in info:
             raise KeyError(f"info has no {key!r} (keys: {sorted(info)}); the policy reads it")

@@ -128,6 +128,8 @@ def test_policy_input_checks_its_arguments():
     with pytest.raises(KeyError, match="'lateral_offset'"):
         policy_input(obs, {"phase": 0.0})
     assert policy_input(obs, {}, pieces=("observation",)).shape == (65,)
+    with pytest.raises(ValueError, match=r"'cycle_speed'.*rwalk\.deploy\.Controller"):
+        policy_input(obs, {"phase": 0.0}, pieces=("observation", "cycle_speed"))
 
 
 def test_policy_input_is_the_rsl_rl_policy_group():
