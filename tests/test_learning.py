@@ -97,8 +97,7 @@ def test_recurrent_ppo_and_symmetry_train_and_play(tmp_path):
 def test_one_command_trains_the_teacher_then_its_student(tmp_path, capsys):
     folder = tmp_path / "run"
     train.main([*TINY, "--teacher", "--max-iterations", "2", "--student-iterations", "3",
-                "--student-actor", "mlp", "--student-noise-std", "0.3",
-                "--log-dir", str(folder)])  # fmt: skip
+                "--student-actor", "mlp", "--log-dir", str(folder)])  # fmt: skip
     out = capsys.readouterr().out
     assert f"distilling the teacher {folder / 'model_1.pt'}" in out
     assert [it for it, _ in checkpoint_files(folder)] == [0, 1]
@@ -106,14 +105,8 @@ def test_one_command_trains_the_teacher_then_its_student(tmp_path, capsys):
     student = json.loads((folder / "student" / "config.json").read_text())["train"]
     assert student["distill"] == str(folder) and student["actor"] == "mlp"
     assert not student["teacher"] and student["student_iterations"] == 0
-    # the student explores with its own action noise; the teacher started at --init-noise-std
-    teacher = json.loads((folder / "config.json").read_text())["train"]
-    assert (teacher["init_noise_std"], teacher["student_noise_std"]) == (0.1, 0.3)
-    assert (student["init_noise_std"], student["student_noise_std"]) == (0.3, None)
     saved = load_checkpoint(folder / "student" / "model_2.pt")
     assert saved["student_state_dict"]["mlp.0.weight"].shape[1] == 68  # blind
-    std = saved["student_state_dict"]["distribution.std_param"]  # the loss reads the mean
-    assert torch.equal(std, torch.full_like(std, 0.3))
     assert play.play(["--checkpoint", str(folder / "student" / "model_2.pt"), *PLAY])
 
 
@@ -172,15 +165,6 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
         (["--teacher", "--student-actor", "cnn"], "--student-actor must be one of"),
         (["--student-iterations", "5"], "--student-iterations needs --teacher"),
         (["--distill-levels"], "--distill-levels needs --distill or --student-iterations"),
-        (["--student-noise-std", "0.2"], "--student-noise-std 0.2 needs --student-iterations"),
-        (
-            ["--teacher", "--student-iterations", "1", "--student-noise-std", "nan"],
-            "--student-noise-std must be a finite number > 0, got nan",
-        ),
-        (
-            ["--teacher", "--student-iterations", "1", "--student-noise-std", "0"],
-            "--student-noise-std must be a finite number > 0, got 0.0",
-        ),
         (["--finetune-num-envs", "4"], "--finetune-num-envs 4 needs --finetune-iterations"),
         (
             [

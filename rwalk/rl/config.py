@@ -273,11 +273,6 @@ class TrainConfig:
     goes on with --resume LOG_DIR/student)"""
     student_actor: str = "gru"
     """--student-iterations: the student's model (mlp, gru, lstm)"""
-    student_noise_std: float | None = None
-    """--student-iterations: the standard deviation of the Gaussian noise on the student's
-    actions in its own rollouts while it is distilled (the states the teacher labels; its
-    loss and the deployed student read the mean); None: --init-noise-std, as the teacher
-    starts"""
     distill_levels: bool = False
     """--distill, --student-iterations: the student's curriculum starts where its teacher's
     checkpoint left it (each env on its teacher's terrain level; with another number of
@@ -341,12 +336,6 @@ class TrainConfig:
             window = "flat_from" if self.flat_from else "flat_until"
             raise ValueError(f"{show_flag(window, getattr(self, window))} needs --flat-kinds "
                              f"KIND ...: the kinds of tile the window flattens")  # fmt: skip
-        if self.student_noise_std is not None:
-            require_positive(self, "student_noise_std")
-            if not self.student_iterations:
-                shown_flag = show_flag("student_noise_std", self.student_noise_std)
-                raise ValueError(f"{shown_flag} needs --student-iterations: it is the student "
-                                 "stage's")  # fmt: skip
         if self.student_iterations and not self.teacher:
             raise ValueError("--student-iterations needs --teacher: the student is distilled "
                              "from the teacher this run trains")  # fmt: skip
@@ -732,15 +721,12 @@ def student_training(teacher: Training) -> Training:
     """The student stage of ``teacher`` (a run with --student-iterations): distil its
     LOG_DIR's teacher into a --student-actor model in LOG_DIR/student for
     --student-iterations iterations, in the teacher's world, blind (the teacher's policy
-    pieces but the privileged ones), with the teacher's PPO settings (its action noise
-    --student-noise-std where given) and --overwrite."""
+    pieces but the privileged ones), with the teacher's PPO settings and --overwrite."""
     blind = tuple(name for name in teacher.train.policy_obs if name not in SIMULATOR_PIECES)
     train = dataclasses.replace(
         teacher.train, teacher=False, teacher_obs=PRIVILEGED_PIECES, distill=teacher.run.log_dir,
         warm_start="", policy_obs=blind,
         actor=teacher.train.student_actor, student_iterations=0, symmetry=False, critic_obs=(),
-        init_noise_std=teacher.train.student_noise_std or teacher.train.init_noise_std,
-        student_noise_std=None,
         critic="", warm_start_critic="", warm_start_levels=False,
         late_iterations=0, flat_kinds=(), flat_from=0, flat_until=None,
         **dict.fromkeys(LATE_VALUES),
