@@ -199,7 +199,7 @@ def test_the_walk_demo_console_script_exits_0():
 
 
 #: The runners whose command lines come from their ``Args`` dataclass (beside train and play).
-RUNNERS = ("sim2sim", "robustness", "base_gait_report", "fidelity", "adaptive_report",
+RUNNERS = ("sim2sim", "robustness", "base_gait_report", "fidelity", "adaptive_report", "average",
            "single_bench", "walk_demo", "bench", "plot_training")  # fmt: skip
 
 
@@ -258,3 +258,54 @@ def test_plot_training_puts_runs_at_their_measured_paces(trained, tmp_path, monk
     with pytest.raises(SystemExit) as exit_:
         main([str(trained), str(trained), "--paces", "3", "--out", str(tmp_path / "q.png")])
     assert exit_.value.code == 2 and "--paces needs one number" in capsys.readouterr().err
+
+
+def test_average_writes_the_mean_policy_beside_the_run_and_resume_ignores_it(trained, capsys):
+    from rwalk.rl.checkpoints import checkpoint_files
+    from rwalk.runners.average import main
+
+    main([str(trained), "--first", "0", "--last", "1"])
+    out = trained / "average_0-1.pt"
+    assert f"wrote {out}: the policy averaged over iterations 0, 1" in capsys.readouterr().out
+    mean, first, last = (load_checkpoint(p) for p in (out, trained / "model_0.pt",
+                                                      trained / "model_1.pt"))  # fmt: skip
+    assert mean["averaged"] == [0, 1] and mean["iter"] == 1
+    for name, tensor in mean["actor_state_dict"].items():
+        if name.startswith("obs_normalizer."):
+            assert torch.equal(tensor, last["actor_state_dict"][name]), name
+        else:
+            pair = [run["actor_state_dict"][name].double() for run in (first, last)]
+            assert torch.equal(tensor, ((pair[0] + pair[1]) / 2).float()), name
+    for name, tensor in mean["critic_state_dict"].items():
+        assert torch.equal(tensor, last["critic_state_dict"][name]), name
+    assert [it for it, _ in checkpoint_files(trained)] == [0, 1]  # --resume takes model_1
+    out.unlink()
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--out", "sub/x.pt"], "--out must be a file name ending in .pt, without a folder"),
+        (["--out", "model_7.pt"], "that is not a checkpoint's (model_<it>.pt), got 'model_7.pt'"),
+        (["--first", "-1"], "--first must be >= 0, got -1"),
+        (["--first", "1", "--last", "0"], "--last (0) must be >= --first (1)"),
+        (["--first", "1"], "holds 1 checkpoint(s) of iterations 1-1 (its iterations: 0, 1)"),
+    ],
+)
+def test_average_refuses_bad_input_in_one_line(trained, capsys, argv, message):
+    from rwalk.runners.average import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main([str(trained), *argv])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and message in err and err.count("\n") == 1, err
+    assert not list(trained.glob("average_*")) and not list(trained.glob("x.pt"))
+
+
+def test_average_names_a_folder_that_is_not_a_run(tmp_path, capsys):
+    from rwalk.runners.average import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main([str(tmp_path)])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and f"RUN: {str(tmp_path)!r} holds no config.json" in err

@@ -316,6 +316,56 @@ def checkpoint_files(
     return sorted(found)
 
 
+#: The policy entries averaged by ``average_policy``: the networks' weights; the observation
+#: normaliser's running statistics (``obs_normalizer.*``) are the newest checkpoint's.
+AVERAGED_PREFIXES = ("mlp.", "rnn.", "distribution.")
+
+
+def average_policy(paths: list[Path]) -> dict[str, Any]:
+    """The newest of ``paths`` (rsl-rl saves of one run) with its policy's weights (a
+    distilled student's, else PPO's actor) replaced by their mean over ``paths``: weight
+    averaging after the fact (SWA, Izmailov et al. 2018, arXiv 1803.05407). The
+    normaliser's statistics, the critic or teacher and the optimizer are the newest's;
+    ``"averaged"`` lists the iterations. Each mean is summed in float64 in the order of
+    the iterations and rounded once to the weights' dtype: the same bits on every CPU.
+
+    Raises:
+        FileNotFoundError, CheckpointError: naming the file: fewer than two, one that
+            is not an rsl-rl save, an iteration twice, or a policy of other entries or
+            shapes than the newest's.
+    """
+    loaded = sorted(
+        ((checked_iteration(check_rsl_rl(state := load_checkpoint(p), p), "iter", p), p, state)
+         for p in paths),
+        key=lambda item: item[0],
+    )  # fmt: skip
+    if len(loaded) < 2:
+        raise CheckpointError(f"averaging needs two checkpoints or more, got {len(loaded)}")
+    iterations = [it for it, _, _ in loaded]
+    twice = next((it for it in iterations if iterations.count(it) > 1), None)
+    if twice is not None:
+        raise CheckpointError(f"two checkpoints hold iteration {twice}: of two runs?")
+    *_, (_, newest_path, newest) = loaded
+    key = "student_state_dict" if "student_state_dict" in newest else "actor_state_dict"
+    policy = newest[key]
+    for _, path, state in loaded:
+        theirs = state.get(key)
+        shapes = {name: tuple(t.shape) for name, t in (theirs or {}).items()}
+        if shapes != {name: tuple(t.shape) for name, t in policy.items()}:
+            raise CheckpointError(
+                f"checkpoint {str(path)!r}: its {key!r} has other entries or shapes than "
+                f"{str(newest_path)!r}'s: not the same policy"
+            )
+    averaged = dict(policy)
+    for name, tensor in policy.items():
+        if name.startswith(AVERAGED_PREFIXES) and tensor.is_floating_point():
+            total = torch.zeros(tensor.shape, dtype=torch.float64)
+            for _, _, state in loaded:
+                total += state[key][name].double()
+            averaged[name] = (total / len(loaded)).to(tensor.dtype)
+    return {**newest, key: averaged, "averaged": iterations}
+
+
 def newest_checkpoint(
     folder: str | os.PathLike[str],
     report: Callable[[str], None] = print,
