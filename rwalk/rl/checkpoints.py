@@ -334,11 +334,11 @@ def average_policy(paths: list[Path]) -> dict[str, Any]:
             is not an rsl-rl save, an iteration twice, or a policy of other entries or
             shapes than the newest's.
     """
-    loaded = sorted(
-        ((checked_iteration(check_rsl_rl(state := load_checkpoint(p), p), "iter", p), p, state)
-         for p in paths),
-        key=lambda item: item[0],
-    )  # fmt: skip
+    loaded = []
+    for path in paths:
+        state = check_rsl_rl(load_checkpoint(path), path)  # its "iter" checked
+        loaded.append((state["iter"], path, state))
+    loaded.sort(key=lambda item: item[0])
     if len(loaded) < 2:
         raise CheckpointError(f"averaging needs two checkpoints or more, got {len(loaded)}")
     iterations = [it for it, _, _ in loaded]
