@@ -270,6 +270,8 @@ def test_average_writes_the_mean_policy_beside_the_run_and_resume_ignores_it(tra
     mean, first, last = (load_checkpoint(p) for p in (out, trained / "model_0.pt",
                                                       trained / "model_1.pt"))  # fmt: skip
     assert mean["averaged"] == [0, 1] and mean["iter"] == 1
+    actors = first["actor_state_dict"], last["actor_state_dict"]
+    assert any(not torch.equal(actors[0][name], actors[1][name]) for name in actors[1])
     for name, tensor in mean["actor_state_dict"].items():
         if name.startswith("obs_normalizer."):
             assert torch.equal(tensor, last["actor_state_dict"][name]), name
