@@ -348,10 +348,9 @@ def average_policy(paths: list[Path]) -> dict[str, Any]:
     *_, (_, newest_path, newest) = loaded
     key = "student_state_dict" if "student_state_dict" in newest else "actor_state_dict"
     policy = newest[key]
+    shapes = {name: tuple(t.shape) for name, t in policy.items()}
     for _, path, state in loaded:
-        theirs = state.get(key)
-        shapes = {name: tuple(t.shape) for name, t in (theirs or {}).items()}
-        if shapes != {name: tuple(t.shape) for name, t in policy.items()}:
+        if {name: tuple(t.shape) for name, t in (state.get(key) or {}).items()} != shapes:
             raise CheckpointError(
                 f"checkpoint {str(path)!r}: its {key!r} has other entries or shapes than "
                 f"{str(newest_path)!r}'s: not the same policy"
