@@ -65,6 +65,9 @@ class ObservationNoise:
     torso_linvel: float = 0.015
     """Half-width of the torso velocity's noise. m/s (about 10% of the walking speed, like
     legged_gym's 0.1 m/s at ~1 m/s)."""
+    torso_forward_speed: float | None = None
+    """Half-width of the noise on the torso velocity's forward (x) component alone, and
+    on the pieces read from it (``cycle_speed``). m/s; None: ``torso_linvel``'s."""
     torso_angvel: float = 0.1
     """Half-width of the torso angular velocity's noise. rad/s."""
     joint_pos: float = 0.01
@@ -83,6 +86,8 @@ class ObservationNoise:
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
+            if value is None and f.name == "torso_forward_speed":
+                continue
             if not (
                 isinstance(value, (int, float))
                 and not isinstance(value, bool)
@@ -102,7 +107,13 @@ class ObservationNoise:
         )  # fmt: skip
         for block, scale in blocks:
             scales[block] = scale
+        scales[OBS_LINVEL.start] = self.forward_speed
         return scales
+
+    @property
+    def forward_speed(self) -> float:
+        """Half-width of the noise on the torso's forward speed (m/s)."""
+        return self.torso_linvel if self.torso_forward_speed is None else self.torso_forward_speed
 
 
 class Sources(NamedTuple):
@@ -239,7 +250,7 @@ COMMON_PIECES: dict[str, ObsPiece] = {
                         mirror=mirrors.identity(1)),
     "cycle_speed": ObsPiece(1, lambda s: s.episodes.cycle_speed().unsqueeze(-1),
                             "the torso's forward speed averaged over the last gait cycle (m/s)",
-                            noise=lambda cfg: cfg.torso_linvel / 4, mirror=mirrors.identity(1)),
+                            noise=lambda cfg: cfg.forward_speed / 4, mirror=mirrors.identity(1)),
     "physics": ObsPiece(len(PHYSICS_PARAMS), lambda s: s.physics.normalised_params(),
                         "privileged: the env's randomised physics, centred and scaled "
                         "(rwalk.randomization)",

@@ -43,6 +43,8 @@ def core(n=4, seed=0, **kw):
         (lambda: Pushes(force=(1.0, 0.5)), "Pushes.force has min > max"),
         (lambda: Pushes(force=(0.0, 6.0)), "Pushes.force must be at most 5 N, got .0.0, 6.0."),
         (lambda: ObservationNoise(joint_vel=-0.1), "ObservationNoise.joint_vel must be a scale"),
+        (lambda: ObservationNoise(torso_forward_speed=-0.1),
+         "ObservationNoise.torso_forward_speed must be a scale"),
         (lambda: EnvConfig(pushes=(1.0, 2.0)), "EnvConfig.pushes must be a Pushes"),
     ],
 )
@@ -260,6 +262,21 @@ def test_noise_on_the_policy_group_only():
     assert not torch.equal(env.get_observations()["policy"][:, :7], policy[:, :7])
     again = RslRlVecEnv(ResidualWalkVecEnv(3, cfg, seed=1)).get_observations()
     assert torch.equal(again["policy"], policy)  # the seed fixes the noise
+
+
+def test_forward_speed_noise_alone():
+    """The torso velocity's x gets torso_forward_speed's half-width, y and z torso_linvel's;
+    unset, x gets torso_linvel's too. The cycle speed (a forward speed) follows x."""
+    from rwalk.observations import COMMON_PIECES
+
+    default = ObservationNoise().sensor_scales()
+    assert default[7:10].tolist() == [0.015, 0.015, 0.015]
+    scales = ObservationNoise(torso_forward_speed=0.045).sensor_scales()
+    assert scales[7:10].tolist() == [0.045, 0.015, 0.015]
+    assert torch.equal(scales[10:], default[10:]) and torch.equal(scales[:7], default[:7])
+    cycle = COMMON_PIECES["cycle_speed"].noise
+    assert cycle(ObservationNoise(torso_forward_speed=0.04)) == 0.01
+    assert cycle(ObservationNoise(torso_linvel=0.04)) == 0.01
 
 
 def test_env_i_sees_the_noise_of_a_single_env_seeded_s_plus_i():

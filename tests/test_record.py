@@ -298,6 +298,8 @@ def test_the_late_speed_kernel_is_the_residual_tasks_own_and_written_out(
         (["--costs", "--clearance-weight", "4000"], "costs.clearance", 4000.0),
         (["--env.randomization.friction", "0.4", "1.1"], "randomization.friction", (0.4, 1.1)),
         (["--env.observation-noise.joint-vel", "0.5"], "observation_noise.joint_vel", 0.5),
+        (["--env.observation-noise.torso-forward-speed", "0.045"],
+         "observation_noise.torso_forward_speed", 0.045),
         (["--env.terrain-levels.promote", "0.7"], "terrain_levels.promote", 0.7),
         (["--no-robust", "--env.pushes.speed", "0.1", "0.2"], "pushes.speed", (0.1, 0.2)),
         (["--env.pushes.force", "0", "0.8"], "pushes.force", (0.0, 0.8)),
@@ -345,6 +347,8 @@ def test_a_flag_that_names_no_field_names_the_near_ones(capsys):
          "--late-tracking 300.0 needs --late-iterations N: this training has no late stage"),
         (["--late-tracking", "nan"], "--late-tracking must be"),
         (["--late-sigma", "-0.01"], "--late-sigma must be"),
+        (["--env.observation-noise.torso-forward-speed", "nan"],
+         "--env.observation-noise.torso-forward-speed must be a scale >= 0, got nan"),
     ],
 )  # fmt: skip
 def test_a_bad_nested_value_is_one_line_naming_its_flag(capsys, flags, message):
