@@ -43,8 +43,10 @@ def core(n=4, seed=0, **kw):
         (lambda: Pushes(force=(1.0, 0.5)), "Pushes.force has min > max"),
         (lambda: Pushes(force=(0.0, 6.0)), "Pushes.force must be at most 5 N, got .0.0, 6.0."),
         (lambda: ObservationNoise(joint_vel=-0.1), "ObservationNoise.joint_vel must be a scale"),
-        (lambda: ObservationNoise(torso_forward_speed=-0.1),
-         "ObservationNoise.torso_forward_speed must be a scale"),
+        (
+            lambda: ObservationNoise(torso_forward_speed=-0.1),
+            "ObservationNoise.torso_forward_speed must be a scale",
+        ),
         (lambda: EnvConfig(pushes=(1.0, 2.0)), "EnvConfig.pushes must be a Pushes"),
     ],
 )

@@ -298,8 +298,11 @@ def test_the_late_speed_kernel_is_the_residual_tasks_own_and_written_out(
         (["--costs", "--clearance-weight", "4000"], "costs.clearance", 4000.0),
         (["--env.randomization.friction", "0.4", "1.1"], "randomization.friction", (0.4, 1.1)),
         (["--env.observation-noise.joint-vel", "0.5"], "observation_noise.joint_vel", 0.5),
-        (["--env.observation-noise.torso-forward-speed", "0.045"],
-         "observation_noise.torso_forward_speed", 0.045),
+        (
+            ["--env.observation-noise.torso-forward-speed", "0.045"],
+            "observation_noise.torso_forward_speed",
+            0.045,
+        ),
         (["--env.terrain-levels.promote", "0.7"], "terrain_levels.promote", 0.7),
         (["--no-robust", "--env.pushes.speed", "0.1", "0.2"], "pushes.speed", (0.1, 0.2)),
         (["--env.pushes.force", "0", "0.8"], "pushes.force", (0.0, 0.8)),
