@@ -109,7 +109,7 @@ RECIPE_FLAGS = [
     "physics", "heights_under_feet", "--student-iterations", "160", "--student-actor", "gru",
     "--distill-levels", "--env.randomization.kp-scale", "0.75", "1.15",
     "--env.randomization.force-scale", "0.75", "1.15", "--env.randomization.latency", "0", "3",
-    "--env.residual-scale", "0.03",
+    "--env.residual-scale", "0.03", "--env.observation-noise.torso-forward-speed", "0.045",
 ]  # fmt: skip
 
 
@@ -124,6 +124,7 @@ def test_the_default_training_is_the_recipe_that_its_flags_give():
 def test_a_flag_sets_a_field_the_recipe_sets():
     default = train.parse_args(SMALL)
     assert default.env.residual_scale == 0.03 and default.env.randomization.latency == (0, 3)
+    assert default.env.observation_noise.forward_speed == 0.045  # x3 torso_linvel's 0.015
     wide = (0.75, 1.15)
     assert default.env.randomization.kp_scale == default.env.randomization.force_scale == wide
     given = train.parse_args(
@@ -134,6 +135,9 @@ def test_a_flag_sets_a_field_the_recipe_sets():
     plain = train.parse_args([*SMALL, "--recipe", "plain"])
     assert plain.env.residual_scale == 0.02 and plain.env.randomization.latency == (0, 2)
     assert plain.env.randomization.kp_scale == (0.85, 1.15)
+    assert plain.env.observation_noise.forward_speed == 0.015  # torso_linvel's
+    given = train.parse_args([*SMALL, "--env.observation-noise.torso-forward-speed", "0.03"])
+    assert given.env.observation_noise.forward_speed == 0.03
 
 
 @pytest.mark.parametrize("flags", [["--no-teacher"], ["--distill", "logs/teacher"]])

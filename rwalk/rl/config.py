@@ -505,7 +505,8 @@ class Preset:
     recipe: str = "precise"
     """how the task trains in the robust world: precise (residual_walk: a teacher that reads
     the drawn physics and the ground under its feet, then its blind GRU student, with the
-    gait costs, the speed kernel, wider servo and latency ranges and actions of +-30 mm:
+    gait costs, the speed kernel, wider servo and latency ranges, actions of +-30 mm and
+    three times the noise on the forward speed it reads:
     Task.recipe, docs/learning.md; each of its values a flag that may be set) or plain
     (PPO alone, the late kernel); a task without a recipe (adaptive_gait) and --no-robust
     train plain"""

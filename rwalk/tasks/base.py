@@ -56,6 +56,9 @@ class Recipe:
     (--env.randomization.latency 0 3: ``{"latency": (0, 3)}``)."""
     residual_scale: float | None = None
     """--env.residual-scale (None: the env's own, the spec's)."""
+    observation_noise: dict[str, float] = dataclasses.field(default_factory=dict)
+    """``ObservationNoise`` half-widths that differ from the robust world's
+    (--env.observation-noise.torso-forward-speed 0.045: ``{"torso_forward_speed": 0.045}``)."""
 
     #: ``train``'s fields that make a teacher and its student: left out where the command
     #: line trains neither (--no-teacher, --distill), so that those flags work alone.
@@ -64,15 +67,19 @@ class Recipe:
 
     def env(self, env: EnvConfig) -> EnvConfig:
         """``env`` (a robust training's) as this recipe trains it: its gait costs (over
-        --costs' defaults), shaping, terrain kinds, physics ranges and action scale."""
+        --costs' defaults), shaping, terrain kinds, physics ranges, action scale and
+        observation noise."""
         costs = dataclasses.replace(env.costs or GaitCosts(), **self.costs)
         shaping = Shaping(**self.shaping) if self.shaping else env.shaping
         levels = dataclasses.replace(env.terrain_levels or TerrainLevels(),
                                      kinds=self.terrain_kinds)  # fmt: skip
         physics = dataclasses.replace(env.randomization, **self.randomization)
         scale = env.residual_scale if self.residual_scale is None else self.residual_scale
+        noise = env.observation_noise
+        noise = noise if noise is None else dataclasses.replace(noise, **self.observation_noise)
         return dataclasses.replace(env, costs=costs, shaping=shaping, terrain_levels=levels,
-                                   randomization=physics, residual_scale=scale)  # fmt: skip
+                                   randomization=physics, residual_scale=scale,
+                                   observation_noise=noise)  # fmt: skip
 
     def train_fields(self, *, teacher: bool = True) -> dict[str, Any]:
         """``train``, without the teacher's and student's fields where not ``teacher``."""
