@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields
 
+from rwalk.commands import CommandCurriculum
 from rwalk.constants import EPISODE_STEPS, SETTLE_STEPS
 from rwalk.gait import GaitParameters
 from rwalk.kinematics import LegGeometry
@@ -96,6 +97,10 @@ class EnvConfig:
     command_interval: float | None = None
     """With ``command_range``: seconds between two draws of an env's target velocity within
     an episode (None: one draw per episode, at its start)."""
+    command_curriculum: CommandCurriculum | None = None
+    """With ``command_range``: draw the commands from its bins that the policy has learned
+    to track, starting near the gait's speed (``rwalk.commands``); None: uniformly from
+    the whole range from the start."""
     randomization: Randomization | None = None
     """Per-env physics (friction, payload, servo strength, ...) drawn at every reset;
     None: the model's own (the spec's env). See ``rwalk.randomization``."""
@@ -118,6 +123,7 @@ class EnvConfig:
             ("randomization", Randomization), ("pushes", Pushes),
             ("observation_noise", ObservationNoise), ("terrain_levels", TerrainLevels),
             ("costs", GaitCosts), ("shaping", Shaping),
+            ("command_curriculum", CommandCurriculum),
         )  # fmt: skip
         for name, kind in kinds + optional:
             if (name, kind) in optional and getattr(self, name) is None:
@@ -193,6 +199,12 @@ class EnvConfig:
             abs(v) <= MAX_SPEED for v in self.command_range
         ):
             raise bad("command_range", f"must be speeds within ±{MAX_SPEED:g} m/s")
+        if self.command_curriculum is not None:  # without a range: refused by the task
+            if self.command_range is not None:  # (a flag may give the range after the part)
+                self.command_curriculum.check_range(self.command_range)
+            if self.command_interval is not None:
+                raise bad("command_interval", "must be None with a command_curriculum (it "
+                          "judges each episode's one command)")  # fmt: skip
         if self.costs is not None:  # the default legs; a Core checks its model's again
             self.costs.check_reach(LegGeometry(), self.top_speed)
 

@@ -17,7 +17,8 @@ the auto-reset they share).
 
 Reset of envs ``rows``: curriculum (their levels move) -> physics (new draws)
 -> pushes (first kick) -> starts (placed on their origins and settled, or
-taken from the pool) -> task (its per-env state, commands) -> episodes (counters
+taken from the pool) -> task (its per-env state; the ended episodes judge their commands
+(``rwalk.commands``), new ones are drawn) -> episodes (counters
 restart).
 
 Seeds: every random quantity is drawn from a counter-based key (seed + i,
@@ -243,6 +244,7 @@ class Core:
         self.obs[rows] = self.starts.place(ids, randomize)
         self.task.reset(rows)
         self.task.forget_actions(rows)
+        self.task.judge_commands(rows, ep.walked_steps, ep.speed_error, ep.fell)
         self.task.draw_commands(rows)
         start = self.obs[rows]
         ep.start(rows, start[:, OBS_POS.start], start[:, OBS_POS.start + 1],

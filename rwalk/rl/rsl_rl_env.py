@@ -140,7 +140,8 @@ class RslRlVecEnv(VecEnv):
         log["Episode/velocity_ripple"] = stats["velocity_ripple"].mean()
         log["Episode/diverged"] = stats["diverged"].double().mean()
         log["Perf/settle_share"] = torch.tensor(self.core.settle_share)
-        return log | self.core.curriculum.log()
+        commands = self.core.task.commands
+        return log | self.core.curriculum.log() | ({} if commands is None else commands.log())
 
     # ------------------------------------------------------------ symmetry
     def mirror(self, group: str) -> Mirror:
@@ -162,14 +163,22 @@ class RslRlVecEnv(VecEnv):
     # ------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, torch.Tensor]:
         """The env's state a checkpoint keeps beside the policy (the hook ``rwalk.rl.runner``
-        calls at each save): the terrain curriculum's levels (empty without a map)."""
-        return self.core.curriculum.checkpoint()
+        calls at each save): the terrain curriculum's levels (empty without a map) and the
+        command curriculum's weights (``command_weights``, where there is one)."""
+        commands = self.core.task.commands
+        weights = {} if commands is None else {"command_weights": commands.weights.clone()}
+        return self.core.curriculum.checkpoint() | weights
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> str | None:
         """Go on from a checkpoint's ``state_dict()``; returns a line for the log where it
-        was of another number of envs (``Curriculum.load_checkpoint``), else None.
+        was of another number of envs (``Curriculum.load_checkpoint``) or of other command
+        bins (``CommandWeights.load``), else None.
 
         Raises:
             ValueError: naming the field, if the state is not what ``state_dict`` writes.
         """
-        return self.core.curriculum.load_checkpoint(state)
+        notes = [self.core.curriculum.load_checkpoint(state)]
+        commands = self.core.task.commands
+        if commands is not None and "command_weights" in state:
+            notes.append(commands.load(state["command_weights"]))
+        return "; ".join(note for note in notes if note) or None

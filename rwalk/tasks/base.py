@@ -22,6 +22,7 @@ import torch
 from torch import Tensor
 
 from rwalk import rng
+from rwalk.commands import CommandWeights
 from rwalk.config import EnvConfig, convert
 from rwalk.levels import TerrainLevels
 from rwalk.mirror import Mirror
@@ -143,6 +144,10 @@ class Task:
         start: the base gait). Shape: (N, action_dim)."""
         self.last_action = torch.zeros_like(self.action)
         """Each env's action of the step before. Shape: (N, action_dim)."""
+        curriculum = config.command_curriculum
+        self.commands = (None if curriculum is None
+                         else CommandWeights(curriculum, config.command_range))  # fmt: skip
+        """The command curriculum's bins (``config.command_curriculum``), or None."""
         self._seed = 0
         if config.costs is not None:
             config.costs.check_reach(world.geometry, config.top_speed)
@@ -243,12 +248,25 @@ class Task:
 
     def draw_commands(self, rows: Tensor) -> None:
         """Each env of ``rows`` draws its episode's target velocity from
-        ``config.command_range``: env i's k-th from the key (seed + i, "command", k)."""
+        ``config.command_range`` (with a command curriculum, from its unlocked bins): env
+        i's k-th from the key (seed + i, "command", k)."""
         low_high = self.config.command_range
         if low_high is None:
             return
+        if self.commands is not None:
+            self.target[rows] = self.commands.draw(self.uniform(rows, COMMAND_STREAM,
+                                                                self.draws, 2))  # fmt: skip
+            return
         u = self.uniform(rows, COMMAND_STREAM, self.draws, 1)[:, 0]
         self.target[rows] = low_high[0] + u * (low_high[1] - low_high[0])
+
+    def judge_commands(self, rows: Tensor, walked: Tensor, speed_error: Tensor,
+                       fell: Tensor) -> None:  # fmt: skip
+        """The episodes of ``rows`` end: with a command curriculum, the ones that tracked
+        their command widen it (``CommandWeights.update``). walked, speed_error, fell:
+        every env's steps, summed |v_x - v*| (m/s) and fall. Each shape: (N,)."""
+        if self.commands is not None:
+            self.commands.update(self.target[rows], walked[rows], speed_error[rows], fell[rows])
 
     def redraw_commands(self, walked: Tensor) -> None:
         """Within episodes: the envs that have walked a whole number of
@@ -308,8 +326,9 @@ class Task:
 
     def state(self) -> dict[str, Tensor]:
         """Per-env tensors to keep when the core is pickled."""
+        commands = {} if self.commands is None else {"command_weights": self.commands.weights}
         return {"target": self.target, "draws": self.draws, "action": self.action,
-                "last_action": self.last_action}  # fmt: skip
+                "last_action": self.last_action} | commands  # fmt: skip
 
     def remember(self, action: Tensor) -> None:
         """Keep this step's action (checked, clipped) and the one before it."""
