@@ -96,16 +96,12 @@ class CommandWeights:
         self.low, self.high = (float(v) for v in command_range)
         self.width = (self.high - self.low) / curriculum.bins
         """Width of a bin. m/s."""
-        self.weights = torch.zeros(curriculum.bins, dtype=torch.long)
-        """Each bin's weight, 0 to ``curriculum.steps``. Shape: (bins,)."""
-        self.restart()
-
-    def restart(self) -> None:
-        """Every bin back at its first weight: full where it overlaps ``start``, else 0."""
-        edges = self.low + self.width * torch.arange(self.curriculum.bins + 1, dtype=torch.float64)
-        first, last = self.curriculum.start
+        edges = self.low + self.width * torch.arange(curriculum.bins + 1, dtype=torch.float64)
+        first, last = curriculum.start
         overlap = (edges[:-1] <= last) & (edges[1:] >= first)
-        self.weights.copy_(overlap.long() * self.curriculum.steps)
+        self.weights = overlap.long() * curriculum.steps
+        """Each bin's weight, 0 to ``curriculum.steps``: at first full over ``start``, else
+        0. Shape: (bins,) long."""
 
     def draw(self, u: Tensor) -> Tensor:
         """Commands from two uniform [0, 1) numbers per env: the first picks a bin by the
