@@ -325,7 +325,8 @@ class Task:
         raise NotImplementedError
 
     def state(self) -> dict[str, Tensor]:
-        """Per-env tensors to keep when the core is pickled."""
+        """Tensors to keep when the core is pickled: per env, and the command
+        curriculum's weights (per bin) where there is one."""
         commands = {} if self.commands is None else {"command_weights": self.commands.weights}
         return {"target": self.target, "draws": self.draws, "action": self.action,
                 "last_action": self.last_action} | commands  # fmt: skip
