@@ -93,8 +93,8 @@ class CommandWeights:
     def __init__(self, curriculum: CommandCurriculum, command_range: tuple[float, float]) -> None:
         curriculum.check_range(command_range)
         self.curriculum = curriculum
-        self.low, self.high = (float(v) for v in command_range)
-        self.width = (self.high - self.low) / curriculum.bins
+        self.low = float(command_range[0])
+        self.width = (float(command_range[1]) - self.low) / curriculum.bins
         """Width of a bin. m/s."""
         edges = self.low + self.width * torch.arange(curriculum.bins + 1, dtype=torch.float64)
         first, last = curriculum.start
