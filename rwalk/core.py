@@ -312,6 +312,29 @@ class Core:
                              task.action_layout)  # fmt: skip
 
     # ------------------------------------------------------------------ extras
+    def curriculum_state(self) -> dict[str, Tensor]:
+        """What a checkpoint keeps of the envs beside the policy: the terrain curriculum's
+        levels (``terrain_level``; none without a map) and the command curriculum's weights
+        (``command_weights``, where there is one). Empty where neither is."""
+        commands = self.task.commands
+        weights = {} if commands is None else {"command_weights": commands.weights.clone()}
+        return self.curriculum.checkpoint() | weights
+
+    def load_curriculum_state(self, state: dict[str, Tensor]) -> str | None:
+        """Go on from a checkpoint's ``curriculum_state()``; returns a line for the log where
+        it was of another number of envs (``Curriculum.load_checkpoint``) or of other command
+        bins (``CommandWeights.load``), else None.
+
+        Raises:
+            ValueError: naming the field, if the state is not what ``curriculum_state``
+                writes.
+        """
+        notes = [self.curriculum.load_checkpoint(state)]
+        commands = self.task.commands
+        if commands is not None and "command_weights" in state:
+            notes.append(commands.load(state["command_weights"]))
+        return "; ".join(note for note in notes if note) or None
+
     def set_terrain_scale(self, scale: float) -> None:
         """Scale the heightfield's roughness for all envs (0 flat .. 1 full) at once; new
         starts are placed on the new ground (``World.set_terrain_scale``).

@@ -16,7 +16,7 @@ from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.collectors.distributed import DistributedCollector
 
 from rwalk.observations import PRIVILEGED_PIECES
-from rwalk.rl.checkpoints import load_checkpoint
+from rwalk.rl.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
 from rwalk.rl.config import observation_groups
 from rwalk.rl.legacy import TorchRLArgs as Args
 from rwalk.rl.legacy import TrainingEnv
@@ -25,11 +25,14 @@ from rwalk.rl.torchrl_collect import (
     WorkerEnv,
     available_cores,
     check_workers,
+    curricula,
     make_collector,
     make_env,
+    norm_stats,
+    resumed_curricula,
     worker_threads,
 )
-from rwalk.rl.torchrl_ppo import make_modules
+from rwalk.rl.torchrl_ppo import check_torchrl, make_modules
 from rwalk.runners import train_torchrl
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -180,6 +183,70 @@ def test_the_default_env_is_the_robust_world_with_a_privileged_critic():
     assert value.in_keys == ["critic"] and widths["critic"] > widths["policy"]
 
 
+# ------------------------------------------------------------- the curricula in checkpoints
+
+
+def _levels(state: dict) -> torch.Tensor:
+    """The terrain levels in an env's ``state_dict`` (its one extra state: ``Curricula``'s)."""
+    (extra,) = [value for key, value in state.items() if key.endswith("_extra_state")]
+    return extra["terrain_level"]
+
+
+def test_an_env_keeps_its_terrain_levels_in_its_state_dict_and_loads_them():
+    args = _args(collectors=1)
+    env = _env(args)
+    levels = torch.tensor([3, 1, 4, 1, 5, 2, 6, 5])
+    assert env.base_env.core.load_curriculum_state({"terrain_level": levels}) is None
+    assert torch.equal(_levels(env.state_dict()), levels)
+    other = _env(args, norms=norm_stats(env))
+    assert torch.count_nonzero(_levels(other.state_dict())) == 0  # the start level
+    other.load_state_dict(env.state_dict())
+    assert torch.equal(_levels(other.state_dict()), levels)
+    built = _env(args, norms=norm_stats(env), curricula={"terrain_level": levels})
+    assert torch.equal(_levels(built.state_dict()), levels)
+    built.reset()  # the first starts are on the saved levels, not judged
+    assert torch.equal(built.base_env.core.curriculum.terrain_level, levels)
+
+
+def test_a_resumed_run_goes_on_from_each_workers_terrain_levels(tmp_path):
+    done = _train("--collectors", "2", "--max-iterations", "1", "--log-dir", str(tmp_path))
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    first = load_checkpoint(tmp_path / "torchrl_1.pt")
+    assert [torch.count_nonzero(env["terrain_level"]) for env in first["curricula"]] == [0, 0]
+    mine = [torch.tensor([1, 2, 3, 0, 1, 2, 3, 0]), torch.tensor([2, 0, 1, 3, 2, 0, 1, 3])]
+    save_checkpoint(first | {"curricula": [{"terrain_level": m} for m in mine]},
+                    tmp_path / "torchrl_1.pt")  # fmt: skip
+    done = _train("--collectors", "2", "--max-iterations", "2", "--resume", str(tmp_path),
+                  "--log-dir", str(tmp_path))  # fmt: skip
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert "curricula" not in done.stdout  # no note: each worker had its own
+    resumed = load_checkpoint(tmp_path / "torchrl_2.pt")["curricula"]
+    # 8 steps of each episode: none has ended, so no level has moved since the resume
+    assert [env["terrain_level"].tolist() for env in resumed] == [m.tolist() for m in mine]
+
+
+def test_curricula_of_another_worker_count_or_none_are_said(capsys):
+    a, b = {"terrain_level": torch.tensor([1])}, {"terrain_level": torch.tensor([2])}
+    assert resumed_curricula([a, b], 3) == [a, b, a]
+    assert "the curricula of 2 collector workers, this run has 3" in capsys.readouterr().out
+    assert resumed_curricula([a, b], 2) == [a, b] and capsys.readouterr().out == ""
+    assert resumed_curricula(None, 2) == [None, None]
+    assert "holds no curricula" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "bad", [{"terrain_level": torch.zeros(3)}, [{"terrain_level": 1}], ["levels"]]
+)
+def test_a_checkpoint_with_bad_curricula_is_refused_naming_them(tmp_path, bad):
+    norm = {"loc": torch.zeros(2), "scale": torch.ones(2)}
+    saved = {"trainer": "torchrl", "iteration": 1, "actor": {}, "critic": {}, "optimizer": {},
+             "obs_norm": norm, "critic_norm": norm}  # fmt: skip
+    assert check_torchrl(saved, tmp_path / "t.pt") is saved  # an older one: none kept
+    curricula = [bad] if isinstance(bad, dict) else bad
+    with pytest.raises(CheckpointError, match=r"t\.pt.*'curricula' must be a list"):
+        check_torchrl(saved | {"curricula": curricula}, tmp_path / "t.pt")
+
+
 # ------------------------------------------------------------------- workers, seeds, weights
 
 
@@ -203,6 +270,8 @@ def test_workers_step_their_own_seeds_and_get_each_update(backend, kind):
                 parameter.add_(0.3 * torch.randn_like(parameter))
         collector.update_policy_weights_()
         after = next(batches)
+        kept = curricula(collector)  # TorchRL's distributed collectors give no state_dict
+    assert kept is None if backend == "distributed" else len(kept) == 2
     assert before.shape == after.shape == (2, 8, 4)  # (workers, envs, steps)
     # Seeds: worker w's envs start like a batch seeded seed + w * num_envs.
     first = before["observation"][:, :, 0]  # (workers, envs, 65)

@@ -163,22 +163,15 @@ class RslRlVecEnv(VecEnv):
     # ------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, torch.Tensor]:
         """The env's state a checkpoint keeps beside the policy (the hook ``rwalk.rl.runner``
-        calls at each save): the terrain curriculum's levels (empty without a map) and the
-        command curriculum's weights (``command_weights``, where there is one)."""
-        commands = self.core.task.commands
-        weights = {} if commands is None else {"command_weights": commands.weights.clone()}
-        return self.core.curriculum.checkpoint() | weights
+        calls at each save): ``Core.curriculum_state``, the terrain levels and command
+        weights."""
+        return self.core.curriculum_state()
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> str | None:
-        """Go on from a checkpoint's ``state_dict()``; returns a line for the log where it
-        was of another number of envs (``Curriculum.load_checkpoint``) or of other command
-        bins (``CommandWeights.load``), else None.
+        """Go on from a checkpoint's ``state_dict()`` (``Core.load_curriculum_state``);
+        returns a line for the log where it was of another number of envs or command bins.
 
         Raises:
             ValueError: naming the field, if the state is not what ``state_dict`` writes.
         """
-        notes = [self.core.curriculum.load_checkpoint(state)]
-        commands = self.core.task.commands
-        if commands is not None and "command_weights" in state:
-            notes.append(commands.load(state["command_weights"]))
-        return "; ".join(note for note in notes if note) or None
+        return self.core.load_curriculum_state(state)

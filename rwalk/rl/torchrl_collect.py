@@ -24,6 +24,13 @@ own thread budget (physics and torch): ``--threads``, or ``cores // K`` when tha
 policy sees one scale and the checkpoint holds it. Collection is synchronous: each
 iteration gathers one rollout of ``--num-steps-per-env`` steps from every worker,
 stacked into a batch of shape (K, num_envs, num_steps_per_env).
+
+Each env also carries its curricula (the terrain levels and command weights,
+``Core.curriculum_state``) in its transforms' ``state_dict`` (``Curricula``), so that
+a collector's own ``state_dict()`` holds every local worker's (``curricula``) and a
+resumed run builds each worker's env on its saved levels (``make_env``'s
+``curricula``). TorchRL's distributed and Ray collectors give no ``state_dict``: with
+those backends a resumed run's curricula start again.
 """
 
 from __future__ import annotations
@@ -33,8 +40,8 @@ from dataclasses import dataclass
 
 import torch
 from torch import Tensor
-from torchrl.collectors import BaseCollector, Collector
-from torchrl.envs import Compose, ObservationNorm, RewardScaling, TransformedEnv
+from torchrl.collectors import BaseCollector, Collector, MultiSyncCollector
+from torchrl.envs import Compose, ObservationNorm, RewardScaling, Transform, TransformedEnv
 
 from rwalk.envs.torchrl_env import BatchedEnv
 from rwalk.rl.checkpoints import RunSetupError
@@ -49,6 +56,8 @@ NORM_STEPS = 20
 
 Norms = dict[str, tuple[Tensor, Tensor]]
 """(loc, scale) of each normalised key: ``(x - loc) / scale``. Shapes: (D,), (D,)."""
+State = dict[str, Tensor]
+"""An env's curricula: ``Core.curriculum_state()`` (empty where it has none)."""
 
 
 #: Older name of ``rwalk.threads.cores``.
@@ -80,9 +89,11 @@ def make_env(
     seed: int,
     threads: int,
     norms: Norms | None = None,
+    curricula: State | None = None,
 ) -> TransformedEnv:
     """The training env: ``setup.num_envs`` envs of ``setup``'s world with the keys
-    ``policy`` and ``critic`` (their observation groups, normalised) and scaled reward.
+    ``policy`` and ``critic`` (their observation groups, normalised), scaled reward, and
+    its curricula in its ``state_dict`` (``Curricula``).
 
     Args:
         setup: the training's envs (task, count, world).
@@ -91,6 +102,11 @@ def make_env(
         threads: physics threads (0 = all cores).
         norms: (loc, scale) of each of ``GROUPS``, each shaped like its key (D,); None
             measures them on this env (``measure_norms``).
+        curricula: a resumed run's curricula of these envs (``Core.curriculum_state``),
+            loaded before the first reset; None: they start at the start level.
+
+    Raises:
+        ValueError: naming the field, if ``curricula`` is not what a run saved.
     """
     base = BatchedEnv(
         setup.num_envs,
@@ -99,12 +115,71 @@ def make_env(
         task=setup.task,
         groups=lambda task: observation_groups(task, setup.env),
     )
+    if curricula is not None:
+        _note(base.core.load_curriculum_state(curricula))
     norms = measure_norms(base) if norms is None else norms
     normalise = [
         ObservationNorm(loc=loc.clone(), scale=scale.clone(), in_keys=[key], standard_normal=True)
         for key, (loc, scale) in norms.items()
     ]
-    return TransformedEnv(base, Compose(*normalise, RewardScaling(loc=0.0, scale=reward_scale)))
+    scale = RewardScaling(loc=0.0, scale=reward_scale)
+    return TransformedEnv(base, Compose(*normalise, scale, Curricula()))
+
+
+def _note(note: str | None) -> None:
+    if note:
+        print(f"[torchrl] note: {note}", flush=True)
+
+
+class Curricula(Transform):
+    """Keeps its env's curricula (``Core.curriculum_state``: terrain levels, command
+    weights) as the transform's extra state, as ``VecNorm`` keeps its statistics: a
+    ``TransformedEnv``'s ``state_dict`` is its transforms', so the env's, and a
+    collector's (a worker's too), hold them; ``load_state_dict`` goes on from them.
+    Changes no key of the data."""
+
+    def __init__(self) -> None:
+        super().__init__(in_keys=[], out_keys=[])
+
+    def _core(self):
+        return self.parent.base_env.core
+
+    def get_extra_state(self) -> State:
+        return self._core().curriculum_state()
+
+    def set_extra_state(self, state: State) -> None:
+        _note(self._core().load_curriculum_state(state))
+
+
+def curricula(collector: BaseCollector) -> list[State] | None:
+    """Each local env's curricula, worker by worker (``Curricula``'s extra state), from
+    the collector's own ``state_dict()``; None where its backend gives none (distributed,
+    Ray)."""
+    if isinstance(collector, MultiSyncCollector):
+        state = collector.state_dict()
+        envs = [state[f"worker{i}"]["env_state_dict"] for i in range(collector.num_workers)]
+    elif isinstance(collector, Collector):
+        envs = [collector.state_dict()["env_state_dict"]]
+    else:
+        return None
+    # Curricula is the one transform of make_env's with extra state
+    return [next(v for k, v in env.items() if k.endswith("_extra_state")) for env in envs]
+
+
+def resumed_curricula(saved: list[State] | None, workers: int) -> list[State | None]:
+    """Each of ``workers`` envs' curricula to go on from: worker w takes the saved
+    worker w mod (those saved) (the same where the count is the run's); None each where
+    the checkpoint holds none (written before the curricula were kept, or by a
+    distributed or Ray run), with a line for the log."""
+    if not saved:
+        _note("the checkpoint holds no curricula (terrain levels, command weights): "
+              "they start again")  # fmt: skip
+        return [None] * workers
+    if len(saved) != workers:
+        _note(f"the checkpoint holds the curricula of {len(saved)} collector workers, "
+              f"this run has {workers}: worker w goes on from saved worker w mod "
+              f"{len(saved)}")  # fmt: skip
+    return [saved[w % len(saved)] for w in range(workers)]
 
 
 def norm_stats(env: TransformedEnv) -> Norms:
@@ -138,6 +213,8 @@ class WorkerEnv:
     """Physics and torch threads of this worker."""
     norms: Norms
     """The normalisation this process measured, of each of ``GROUPS``."""
+    curricula: State | None = None
+    """A resumed run's curricula of this worker's envs; None: they start again."""
 
     @property
     def seed(self) -> int:
@@ -146,9 +223,8 @@ class WorkerEnv:
     def __call__(self) -> TransformedEnv:
         torch.set_num_threads(self.threads)
         torch.manual_seed(self.seed)  # the worker's own stream of action noise
-        return make_env(
-            self.setup, self.reward_scale, seed=self.seed, threads=self.threads, norms=self.norms
-        )
+        return make_env(self.setup, self.reward_scale, seed=self.seed, threads=self.threads,
+                        norms=self.norms, curricula=self.curricula)  # fmt: skip
 
 
 def require_backend(backend: str) -> None:
@@ -209,6 +285,7 @@ def make_collector(
     seed: int,
     threads: int,
     iterations: int,
+    curricula: list[State | None] | None = None,
 ) -> BaseCollector:
     """The run's collector: ``iterations`` synchronous batches.
 
@@ -216,8 +293,9 @@ def make_collector(
     (batches of shape (num_envs, num_steps_per_env)). Otherwise K workers each build
     their own env (``WorkerEnv`` of ``setup``, seeds from ``seed``, ``threads`` threads
     or a share of the cores) normalised with ``env``'s statistics; batches have shape
-    (K, num_envs, num_steps_per_env). Send new weights with ``update_policy_weights_()``
-    after each update.
+    (K, num_envs, num_steps_per_env); worker w's envs go on from ``curricula[w]`` (a
+    resumed run's, ``resumed_curricula``; None: none). Send new weights with
+    ``update_policy_weights_()`` after each update.
     """
     frames = setup.num_envs * ppo.num_steps_per_env  # per worker and batch
     if ppo.collectors == 1 and ppo.backend == "process":
@@ -231,7 +309,9 @@ def make_collector(
     k = ppo.collectors
     per_worker = worker_threads(k, threads)
     norms = norm_stats(env)
-    makers = [WorkerEnv(setup, ppo.reward_scale, seed, w, per_worker, norms) for w in range(k)]
+    saved = curricula or [None] * k
+    makers = [WorkerEnv(setup, ppo.reward_scale, seed, w, per_worker, norms, saved[w])
+              for w in range(k)]  # fmt: skip
     worker_kwargs = {"auto_register_policy_transforms": False}
     if ppo.backend == "process":
         options = {

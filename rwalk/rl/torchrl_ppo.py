@@ -11,7 +11,8 @@ pieces), each normalised, on minibatches from a replay buffer.
 Writes to ``run.log_dir`` under its lock (``rwalk.rl.checkpoints.run_lock``):
 config.json (its record, ``"trainer": "torchrl"``), and checkpoints
 ``torchrl_<n>.pt`` (the state after <n> iterations, every ``run.save_interval``, at
-the end and when ``run.max_minutes`` is spent; marked ``"trainer": "torchrl"``),
+the end and when ``run.max_minutes`` is spent; marked ``"trainer": "torchrl"``; with
+each local collector worker's curricula, ``rwalk.rl.torchrl_collect.curricula``),
 atomically. Prints one progress line per iteration (with that iteration's
 frames/s, overall and while collecting).
 """
@@ -51,7 +52,14 @@ from rwalk.rl.checkpoints import (
 from rwalk.rl.config import RunSettings, resume_conflict
 from rwalk.rl.legacy import as_training
 from rwalk.rl.record import read_record, write_record
-from rwalk.rl.torchrl_collect import check_workers, make_collector, make_env, require_backend
+from rwalk.rl.torchrl_collect import (
+    check_workers,
+    curricula,
+    make_collector,
+    make_env,
+    require_backend,
+    resumed_curricula,
+)
 from rwalk.rl.torchrl_config import TorchRLConfig, TorchRLTraining
 from rwalk.threads import SharedCores
 
@@ -109,7 +117,18 @@ def check_torchrl(loaded: dict[str, Any], path) -> dict[str, Any]:
     for key in ("obs_norm", "critic_norm"):
         if not all(isinstance(loaded[key].get(k), torch.Tensor) for k in ("loc", "scale")):
             raise CheckpointError(f"checkpoint {str(path)!r}: {key!r} needs tensors loc, scale")
+    saved = loaded.get("curricula", [])  # older checkpoints: none
+    if not (isinstance(saved, list) and all(_integer_tensors(env) for env in saved)):
+        raise CheckpointError(f"checkpoint {str(path)!r}: 'curricula' must be a list of "
+                              f"dicts of integer tensors, one per collector worker")  # fmt: skip
     return loaded
+
+
+def _integer_tensors(state: Any) -> bool:
+    return isinstance(state, dict) and all(
+        isinstance(v, torch.Tensor) and not v.is_floating_point() and not v.is_complex()
+        for v in state.values()
+    )
 
 
 def resume_point(args: TorchRLTraining):
@@ -155,7 +174,8 @@ def train(args, given: frozenset[str] | None = None) -> Path:
 
     The run folder follows rwalk-train's rule: its lock, and another run's checkpoints
     (of either trainer) refused unless --resume or --overwrite. --resume goes on from a
-    torchrl checkpoint: models, optimizer and normalisations, with the run's own record
+    torchrl checkpoint: models, optimizer, normalisations and the envs' curricula (terrain
+    levels, command weights), with the run's own record
     (``given``: unused, kept for older callers; see ``resume_point``).
 
     Raises:
@@ -189,7 +209,14 @@ def _train(args: TorchRLTraining, state: dict[str, Any] | None, clock: float,
         norms = {key: (state[saved]["loc"], state[saved]["scale"])
                  for key, saved in (("policy", "obs_norm"), ("critic", "critic_norm"))}  # fmt: skip
     # With several collectors this env only gives the specs and the normalisation.
-    env = make_env(setup, ppo.reward_scale, seed=run.seed, threads=run.threads, norms=norms)
+    here = ppo.collectors == 1 and ppo.backend == "process"
+    saved = None if state is None else resumed_curricula(state.get("curricula"), ppo.collectors)
+    env = make_env(setup, ppo.reward_scale, seed=run.seed, threads=run.threads, norms=norms,
+                   curricula=saved[0] if saved and here else None)  # fmt: skip
+    if ppo.backend != "process":
+        print(f"[torchrl] note: TorchRL's {ppo.backend} collectors give no state_dict, so "
+              f"checkpoints hold no curricula: a resumed run's terrain levels and command "
+              f"weights start again", flush=True)  # fmt: skip
     note = write_record(log_dir / "config.json", args, TRAINER,
                         resumed and resumed.parent / "config.json")  # fmt: skip
     if note:
@@ -213,7 +240,7 @@ def _train(args: TorchRLTraining, state: dict[str, Any] | None, clock: float,
         "groups": {key: list(pieces) for key, pieces in env.base_env.groups.items()},
     }
     collector = make_collector(env, actor, setup, ppo, seed=run.seed, threads=run.threads,
-                               iterations=run.max_iterations - first)  # fmt: skip
+                               iterations=run.max_iterations - first, curricula=saved)  # fmt: skip
     del env  # with several collectors the workers step their own envs
     try:
         frames = ppo.frames_per_batch(setup.num_envs)
@@ -309,6 +336,9 @@ def _learn(
                 "critic": critic.state_dict(),
                 "optimizer": optimizer.state_dict(),
             }
+            envs = curricula(collector)  # None where the backend gives no state
+            if envs is not None:
+                state["curricula"] = envs
             save_checkpoint(state | kept, checkpoint)
         if out_of_time and it + 1 < run.max_iterations:
             print(f"[torchrl] stopping: the {run.max_minutes:g}-minute budget is reached")
