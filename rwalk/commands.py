@@ -3,8 +3,9 @@
 ``EnvConfig.command_range`` is cut into ``CommandCurriculum.bins`` equal bins. Each bin
 has an integer weight from 0 to ``steps``; an episode's command is drawn from a bin with
 probability proportional to its weight, then uniformly within it. At first only the bins
-that overlap ``start`` have weight (all of it). An episode that ends without a fall and
-with a mean |v_x - v*| of at most ``tolerance`` adds one to its bin's weight and to each
+that overlap ``start`` have weight (all of it). An episode that runs its whole length
+(a fall or a cut-short episode counts nothing: ``Task.judge_commands``) with a mean
+|v_x - v*| of at most ``tolerance`` adds one to its bin's weight and to each
 neighbour's (walk-these-ways' ``RewardThresholdCurriculum``: a bin's success unlocks the
 commands next to it; legged_gym's ``update_command_curriculum`` widens one range the same
 way). Weights never fall, so commands already learned stay in the mix.
@@ -36,7 +37,7 @@ class CommandCurriculum:
     start: tuple[float, float] = (0.12, 0.14)
     """Commands drawn at first: the bins that overlap (low, high), within command_range. m/s."""
     tolerance: float = 0.03
-    """An episode tracked its command when it did not fall and its mean per-step
+    """An episode tracked its command when it ran its whole length and its mean per-step
     |v_x - v*| was at most this. m/s."""
     steps: int = 5
     """A bin's full weight, in the steps one tracked episode adds to it and its neighbours

@@ -262,11 +262,16 @@ class Task:
 
     def judge_commands(self, rows: Tensor, walked: Tensor, speed_error: Tensor,
                        fell: Tensor) -> None:  # fmt: skip
-        """The episodes of ``rows`` end: with a command curriculum, the ones that tracked
-        their command widen it (``CommandWeights.update``). walked, speed_error, fell:
-        every env's steps, summed |v_x - v*| (m/s) and fall. Each shape: (N,)."""
+        """The episodes of ``rows`` end: with a command curriculum, the ones that ran their
+        whole length (``config.max_episode_steps``) and tracked their command widen it
+        (``CommandWeights.update``); an episode cut short (rsl-rl's randomly shortened
+        first ones, a reset from outside) counts nothing, as walk-these-ways divides an
+        episode's sum by the whole length. walked, speed_error, fell: every env's steps,
+        summed |v_x - v*| (m/s) and fall. Each shape: (N,)."""
         if self.commands is not None:
-            self.commands.update(self.target[rows], walked[rows], speed_error[rows], fell[rows])
+            steps = walked[rows]
+            whole = torch.where(steps >= self.config.max_episode_steps, steps, 0)
+            self.commands.update(self.target[rows], whole, speed_error[rows], fell[rows])
 
     def redraw_commands(self, walked: Tensor) -> None:
         """Within episodes: the envs that have walked a whole number of
