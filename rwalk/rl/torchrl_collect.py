@@ -290,15 +290,19 @@ def make_collector(
     """The run's collector: ``iterations`` synchronous batches.
 
     With one collector on the process backend, a ``Collector`` steps ``env`` here
-    (batches of shape (num_envs, num_steps_per_env)). Otherwise K workers each build
-    their own env (``WorkerEnv`` of ``setup``, seeds from ``seed``, ``threads`` threads
-    or a share of the cores) normalised with ``env``'s statistics; batches have shape
-    (K, num_envs, num_steps_per_env); worker w's envs go on from ``curricula[w]`` (a
-    resumed run's, ``resumed_curricula``; None: none). Send new weights with
+    (batches of shape (num_envs, num_steps_per_env)), its envs going on from
+    ``curricula[0]``. Otherwise K workers each build their own env (``WorkerEnv`` of
+    ``setup``, seeds from ``seed``, ``threads`` threads or a share of the cores)
+    normalised with ``env``'s statistics; batches have shape (K, num_envs,
+    num_steps_per_env); worker w's envs go on from ``curricula[w]``. ``curricula``: a
+    resumed run's (``resumed_curricula``); None: none. Send new weights with
     ``update_policy_weights_()`` after each update.
     """
     frames = setup.num_envs * ppo.num_steps_per_env  # per worker and batch
+    saved = curricula or [None] * ppo.collectors
     if ppo.collectors == 1 and ppo.backend == "process":
+        if saved[0] is not None:  # before the collector's first reset
+            _note(env.base_env.core.load_curriculum_state(saved[0]))
         return Collector(
             env,
             policy,
@@ -309,7 +313,6 @@ def make_collector(
     k = ppo.collectors
     per_worker = worker_threads(k, threads)
     norms = norm_stats(env)
-    saved = curricula or [None] * k
     makers = [WorkerEnv(setup, ppo.reward_scale, seed, w, per_worker, norms, saved[w])
               for w in range(k)]  # fmt: skip
     worker_kwargs = {"auto_register_policy_transforms": False}

@@ -209,10 +209,8 @@ def _train(args: TorchRLTraining, state: dict[str, Any] | None, clock: float,
         norms = {key: (state[saved]["loc"], state[saved]["scale"])
                  for key, saved in (("policy", "obs_norm"), ("critic", "critic_norm"))}  # fmt: skip
     # With several collectors this env only gives the specs and the normalisation.
-    here = ppo.collectors == 1 and ppo.backend == "process"
     saved = None if state is None else resumed_curricula(state.get("curricula"), ppo.collectors)
-    env = make_env(setup, ppo.reward_scale, seed=run.seed, threads=run.threads, norms=norms,
-                   curricula=saved[0] if saved and here else None)  # fmt: skip
+    env = make_env(setup, ppo.reward_scale, seed=run.seed, threads=run.threads, norms=norms)
     if ppo.backend != "process":
         print(f"[torchrl] note: TorchRL's {ppo.backend} collectors give no state_dict, so "
               f"checkpoints hold no curricula: a resumed run's terrain levels and command "
