@@ -175,7 +175,7 @@ def test_the_default_recipe_trains_its_teacher_then_its_student_over_two_ranks(t
     code, out = run(
         [*TORCHRUN, "--standalone", "--nproc-per-node", "2", "-m", "rwalk.runners.train",
          *precise, "--max-iterations", "2", "--student-iterations", "2",
-         "--finetune-iterations", "1", "--finetune-num-envs", "4", "--log-dir", str(run_dir)],
+         "--log-dir", str(run_dir)],
         **{distributed.PARAMETER_HASHES_ENV: str(tmp_path / "hashes")},
     )  # fmt: skip
     assert code == 0, out[-4000:]
@@ -183,9 +183,7 @@ def test_the_default_recipe_trains_its_teacher_then_its_student_over_two_ranks(t
     assert [it for it, _ in checkpoint_files(run_dir / "student")] == [0, 1]
     assert "student_state_dict" in load_checkpoint(run_dir / "student" / "model_1.pt")
     rank0, rank1 = hashes(tmp_path / "hashes", 0), hashes(tmp_path / "hashes", 1)
-    assert [it for it, _ in checkpoint_files(run_dir / "finetune")] == [0]
-    # teacher, then student, then the student's fine-tune
-    assert [it for it, _ in rank0] == [0, 1, 0, 1, 0] and rank0 == rank1
+    assert [it for it, _ in rank0] == [0, 1, 0, 1] and rank0 == rank1  # teacher, then student
 
 
 # (c) ranks that differ refuse to start; rank 0's setup errors reach every rank ------------------

@@ -114,7 +114,6 @@ def test_the_default_recipe_trains_a_teacher_then_its_blind_gru_student(tmp_path
     folder = tmp_path / "run"
     precise = [flag for flag in TINY if flag not in ("--recipe", "plain")]
     train.main([*precise, "--max-iterations", "2", "--student-iterations", "2",
-                "--finetune-iterations", "1", "--finetune-num-envs", "4",
                 "--log-dir", str(folder)])  # fmt: skip
     teacher = json.loads((folder / "config.json").read_text())
     assert teacher["preset"]["recipe"] == "precise" and teacher["train"]["teacher"]
@@ -124,10 +123,6 @@ def test_the_default_recipe_trains_a_teacher_then_its_blind_gru_student(tmp_path
     assert student["actor"] == "gru" and student["distill_levels"]
     assert student["policy_obs"] == teacher["train"]["policy_obs"][:-2]  # blind
     assert [it for it, _ in checkpoint_files(folder / "student")] == [0, 1]
-    # then its fine-tune, at the recipe's first learning rate (its length and envs given)
-    tuned = json.loads((folder / "finetune" / "config.json").read_text())["train"]
-    assert tuned["learning_rate"] == student["finetune_learning_rate"] == 3e-5
-    assert [it for it, _ in checkpoint_files(folder / "finetune")] == [0]
 
 
 def test_a_teacher_may_read_only_the_ground_under_its_feet(tmp_path):
