@@ -152,6 +152,18 @@ def test_a_run_without_a_teacher_keeps_the_rest_of_the_recipe(flags):
     assert training.run.max_iterations == 420 and training.train.late_iterations == 0
 
 
+@pytest.mark.parametrize("flags", [["--student-iterations", "0"], ["--student-iterations=0"]])
+def test_a_teacher_alone_needs_no_more_flags(flags):
+    """--student-iterations 0 leaves the student's start on its teacher's levels out too
+    (it used to need --no-distill-levels); the rest is the recipe's."""
+    training = train.parse_args([*SMALL, *flags])
+    assert training.train.teacher and training.train.student_iterations == 0
+    assert not training.train.distill_levels
+    assert training.train.teacher_obs == ("physics", "heights_under_feet")
+    assert training.env.observation_noise.forward_speed == 0.045
+    assert train.parse_args(SMALL).train.distill_levels  # a student: the recipe's
+
+
 @pytest.mark.parametrize(
     "flags", [["--recipe", "plain"], ["--no-robust"], ["--task", "adaptive_gait"]]
 )

@@ -116,15 +116,17 @@ def defaults(cls: type, argv: list[str], read_record) -> Any:
 def _from_preset(cls: type, preset: Preset, argv: list[str], num_envs: int, run: Any) -> Any:
     """The training ``cls`` that ``preset`` starts for ``num_envs`` envs: its env, and where
     it trains with its task's recipe (``Preset.own_recipe``), the recipe's train fields
-    (without its teacher and student where ``argv`` says --no-teacher or --distill) and
+    (without its teacher and student where ``argv`` says --no-teacher or --distill, without
+    the student's start on its teacher's levels where it says --student-iterations 0) and
     --max-iterations."""
     env = with_parts_named(preset.env(num_envs), argv, "--env.")
     recipe = preset.own_recipe
     if recipe is None:
         return cls(env=env, preset=preset, num_envs=num_envs, run=run)
     teacher = peek(argv, "teacher") is not False and not peek(argv, "distill")
+    student = peek(argv, "student_iterations") != "0"
     plain = next(f for f in dataclasses.fields(cls) if f.name == "train").default_factory()
-    train = dataclasses.replace(plain, **recipe.train_fields(teacher=teacher))
+    train = dataclasses.replace(plain, **recipe.train_fields(teacher=teacher, student=student))
     run = dataclasses.replace(run, max_iterations=recipe.max_iterations)
     return cls(env=env, preset=preset, num_envs=num_envs, train=train, run=run)
 

@@ -65,6 +65,9 @@ class Recipe:
     #: line trains neither (--no-teacher, --distill), so that those flags work alone.
     TEACHER_FIELDS = ("teacher", "teacher_obs", "student_iterations", "student_actor",
                       "distill_levels")  # fmt: skip
+    #: ``train``'s fields of the student alone: left out too where the command line trains
+    #: no student (--student-iterations 0), so that a teacher trains alone.
+    STUDENT_FIELDS = ("distill_levels",)
 
     def env(self, env: EnvConfig) -> EnvConfig:
         """``env`` (a robust training's) as this recipe trains it: its gait costs (over
@@ -82,9 +85,12 @@ class Recipe:
                                    randomization=physics, residual_scale=scale,
                                    observation_noise=noise)  # fmt: skip
 
-    def train_fields(self, *, teacher: bool = True) -> dict[str, Any]:
-        """``train``, without the teacher's and student's fields where not ``teacher``."""
-        return {k: v for k, v in self.train.items() if teacher or k not in self.TEACHER_FIELDS}
+    def train_fields(self, *, teacher: bool = True, student: bool = True) -> dict[str, Any]:
+        """``train``, without the teacher's and student's fields where not ``teacher``, and
+        without the student's where not ``student``."""
+        left_out = (() if teacher else self.TEACHER_FIELDS) + (
+            () if student else self.STUDENT_FIELDS)  # fmt: skip
+        return {k: v for k, v in self.train.items() if k not in left_out}
 
 
 class Task:
