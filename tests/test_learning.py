@@ -17,6 +17,7 @@ from rwalk import Core
 from rwalk.randomization import NOMINAL_PARAMS, PhysicsRandomizer, Randomization
 from rwalk.rewards import GaitCosts
 from rwalk.rl.checkpoints import checkpoint_files, load_checkpoint
+from rwalk.rl.config import student_training
 from rwalk.runners import play, train
 from rwalk.tensorboard_events import read_scalars
 
@@ -95,9 +96,12 @@ def test_recurrent_ppo_and_symmetry_train_and_play(tmp_path):
 
 
 def test_one_command_trains_the_teacher_then_its_student(tmp_path, capsys):
+    """The student on --student-num-envs envs, its settled-start pool in the teacher's
+    proportion."""
     folder = tmp_path / "run"
     train.main([*TINY, "--teacher", "--max-iterations", "2", "--student-iterations", "3",
-                "--student-actor", "mlp", "--log-dir", str(folder)])  # fmt: skip
+                "--student-actor", "mlp", "--student-num-envs", "4",
+                "--log-dir", str(folder)])  # fmt: skip
     out = capsys.readouterr().out
     assert f"distilling the teacher {folder / 'model_1.pt'}" in out
     assert [it for it, _ in checkpoint_files(folder)] == [0, 1]
@@ -105,6 +109,9 @@ def test_one_command_trains_the_teacher_then_its_student(tmp_path, capsys):
     student = json.loads((folder / "student" / "config.json").read_text())["train"]
     assert student["distill"] == str(folder) and student["actor"] == "mlp"
     assert not student["teacher"] and student["student_iterations"] == 0
+    assert student["student_num_envs"] == 0
+    runs = [json.loads((path / "config.json").read_text()) for path in (folder, folder / "student")]
+    assert [(run["num_envs"], run["env"]["settle_pool"]) for run in runs] == [(8, 2), (4, 1)]
     saved = load_checkpoint(folder / "student" / "model_2.pt")
     assert saved["student_state_dict"]["mlp.0.weight"].shape[1] == 68  # blind
     assert play.play(["--checkpoint", str(folder / "student" / "model_2.pt"), *PLAY])
@@ -123,6 +130,14 @@ def test_the_default_recipe_trains_a_teacher_then_its_blind_gru_student(tmp_path
     assert student["actor"] == "gru" and student["distill_levels"]
     assert student["policy_obs"] == teacher["train"]["policy_obs"][:-2]  # blind
     assert [it for it, _ in checkpoint_files(folder / "student")] == [0, 1]
+
+
+def test_the_default_recipe_sizes_its_student_with_one_flag():
+    args = train.parse_args(["--student-num-envs", "512"])
+    assert (args.num_envs, args.train.student_iterations, args.train.student_num_envs) == (
+        1024, 160, 512)  # fmt: skip
+    student = student_training(args)
+    assert (student.num_envs, student.env.settle_pool) == (512, args.env.settle_pool // 2)
 
 
 def test_a_teacher_may_read_only_the_ground_under_its_feet(tmp_path):
@@ -166,6 +181,18 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
         (["--student-iterations", "5"], "--student-iterations needs --teacher"),
         (["--distill-levels"], "--distill-levels needs --distill or --student-iterations"),
         (["--finetune-num-envs", "4"], "--finetune-num-envs 4 needs --finetune-iterations"),
+        (["--student-num-envs", "4"], "--student-num-envs 4 needs --student-iterations"),
+        (
+            ["--teacher", "--student-iterations", "1", "--student-num-envs", "-1"],
+            "--student-num-envs must be >= 0, got -1",
+        ),
+        (
+            [
+                *("--teacher", "--student-iterations", "1", "--student-num-envs", "1"),
+                *("--num-steps-per-env", "2"),
+            ],
+            "--num-mini-batches must be <= --student-num-envs * --num-steps-per-env = 2, got 4",
+        ),
         (
             [
                 *("--teacher", "--student-iterations", "1", "--finetune-iterations", "1"),

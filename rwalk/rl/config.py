@@ -273,6 +273,10 @@ class TrainConfig:
     goes on with --resume LOG_DIR/student)"""
     student_actor: str = "gru"
     """--student-iterations: the student's model (mlp, gru, lstm)"""
+    student_num_envs: int = 0
+    """--student-iterations: the student's number of envs (0: the teacher's --num-envs; its
+    settled-start pool scales with it, and with --distill-levels each env starts on the
+    level of one of its teacher's on the same kind of tile)"""
     distill_levels: bool = False
     """--distill, --student-iterations: the student's curriculum starts where its teacher's
     checkpoint left it (each env on its teacher's terrain level; with another number of
@@ -300,14 +304,14 @@ class TrainConfig:
                              f"actor's), got {self.critic!r}")  # fmt: skip
         require_at_least(self, 1, "rnn_hidden_dim", "gradient_length")
         stage = () if self.nominal_physics_iterations is None else ("nominal_physics_iterations",)
-        require_at_least(self, 0, "student_iterations", "finetune_iterations", "finetune_num_envs",
-                         *stage)  # fmt: skip
+        require_at_least(self, 0, "student_iterations", "student_num_envs", "finetune_iterations",
+                         "finetune_num_envs", *stage)  # fmt: skip
         if self.nominal_physics_entropy_coef is not None:
             require_at_least(self, 0, "nominal_physics_entropy_coef")
         require_at_most(self, MAX_WIDTH, "rnn_hidden_dim")
         require_at_most(self, MAX_ITERATIONS, "gradient_length", "student_iterations",
                         "finetune_iterations", *stage)  # fmt: skip
-        require_at_most(self, MAX_ENVS, "finetune_num_envs")
+        require_at_most(self, MAX_ENVS, "student_num_envs", "finetune_num_envs")
         for name in self.nominal_physics_keep:
             if name not in PHYSICS_RANGES:
                 raise ValueError(f"--nominal-physics-keep names ranges of --env.randomization "
@@ -356,6 +360,9 @@ class TrainConfig:
             raise ValueError(f"--finetune-iterations {self.finetune_iterations} needs "
                              "--student-iterations or --distill: it fine-tunes a distilled "
                              "student")  # fmt: skip
+        if self.student_num_envs and not self.student_iterations:
+            raise ValueError(f"--student-num-envs {self.student_num_envs} needs "
+                             "--student-iterations: it sizes the student")  # fmt: skip
         if self.finetune_num_envs and not self.finetune_iterations:
             raise ValueError(f"--finetune-num-envs {self.finetune_num_envs} needs "
                              "--finetune-iterations: it sizes the fine-tune")  # fmt: skip
@@ -583,10 +590,14 @@ class Training(TrainingBase[Env]):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        sizes = {"num_envs": self.num_envs, "finetune_num_envs": self.train.finetune_num_envs}
+        sizes = {
+            "num_envs": self.num_envs,
+            "student_num_envs": self.train.student_num_envs,
+            "finetune_num_envs": self.train.finetune_num_envs,
+        }
         for name, envs in sizes.items():
             frames = envs * self.train.num_steps_per_env
-            if envs and self.train.num_mini_batches > frames:  # 0: no fine-tune of its own size
+            if envs and self.train.num_mini_batches > frames:  # 0: no stage of its own size
                 raise ValueError(f"--num-mini-batches must be <= {flag(name)} * "
                                  f"--num-steps-per-env = {frames}, got "
                                  f"{self.train.num_mini_batches}")  # fmt: skip
@@ -722,13 +733,14 @@ def student_training(teacher: Training) -> Training:
     """The student stage of ``teacher`` (a run with --student-iterations): distil its
     LOG_DIR's teacher into a --student-actor model in LOG_DIR/student for
     --student-iterations iterations, in the teacher's world, blind (the teacher's policy
-    pieces but the privileged ones), with the teacher's PPO settings and --overwrite."""
+    pieces but the privileged ones), with the teacher's PPO settings and --overwrite, on
+    --student-num-envs envs (its settled-start pool in the teacher's proportion)."""
     blind = tuple(name for name in teacher.train.policy_obs if name not in SIMULATOR_PIECES)
     train = dataclasses.replace(
         teacher.train, teacher=False, teacher_obs=PRIVILEGED_PIECES, distill=teacher.run.log_dir,
         warm_start="", policy_obs=blind,
-        actor=teacher.train.student_actor, student_iterations=0, symmetry=False, critic_obs=(),
-        critic="", warm_start_critic="", warm_start_levels=False,
+        actor=teacher.train.student_actor, student_iterations=0, student_num_envs=0,
+        symmetry=False, critic_obs=(), critic="", warm_start_critic="", warm_start_levels=False,
         late_iterations=0, flat_kinds=(), flat_from=0, flat_until=None,
         **dict.fromkeys(LATE_VALUES),
     )  # fmt: skip
@@ -737,7 +749,18 @@ def student_training(teacher: Training) -> Training:
         log_dir=str(Path(teacher.run.log_dir) / "student"),
         run_name=f"{teacher.run.run_name or Path(teacher.run.log_dir).name}-student",
     )  # fmt: skip
-    return resolved(dataclasses.replace(teacher, train=train, run=run))
+    envs = teacher.train.student_num_envs or teacher.num_envs
+    return resolved(dataclasses.replace(teacher, train=train, run=run, num_envs=envs,
+                                        env=_settle_pool_for(teacher, envs)))  # fmt: skip
+
+
+def _settle_pool_for(training: Training, envs: int) -> EnvConfig:
+    """``training``'s env with its settled-start pool scaled from its --num-envs to
+    ``envs`` (at least one start where it has a pool)."""
+    pool = training.env.settle_pool
+    if pool:
+        pool = min(MAX_ENVS, max(1, round(pool * envs / training.num_envs)))
+    return dataclasses.replace(training.env, settle_pool=pool)
 
 
 def finetune_training(student: Training, checkpoint: Path, teacher: Path,
@@ -763,11 +786,9 @@ def finetune_training(student: Training, checkpoint: Path, teacher: Path,
         student.run, resume="", max_iterations=student.train.finetune_iterations,
         log_dir=str(home / "finetune"), run_name=f"{student.run.run_name or home.name}-finetune",
     )  # fmt: skip
-    envs, pool = student.train.finetune_num_envs or student.num_envs, student.env.settle_pool
-    if pool:
-        pool = min(MAX_ENVS, max(1, round(pool * envs / student.num_envs)))
-    env = dataclasses.replace(student.env, settle_pool=pool)
-    return resolved(dataclasses.replace(student, train=train, run=run, num_envs=envs, env=env))
+    envs = student.train.finetune_num_envs or student.num_envs
+    return resolved(dataclasses.replace(student, train=train, run=run, num_envs=envs,
+                                        env=_settle_pool_for(student, envs)))  # fmt: skip
 
 
 #: TrainConfig's fields whose default changed after runs were recorded without them (a
