@@ -132,12 +132,18 @@ def test_the_default_recipe_trains_a_teacher_then_its_blind_gru_student(tmp_path
     assert [it for it, _ in checkpoint_files(folder / "student")] == [0, 1]
 
 
-def test_the_default_recipe_sizes_its_student_with_one_flag():
-    args = train.parse_args(["--student-num-envs", "512"])
+def test_the_default_recipe_distils_its_student_on_half_the_envs():
+    args = train.parse_args([])
     assert (args.num_envs, args.train.student_iterations, args.train.student_num_envs) == (
         1024, 160, 512)  # fmt: skip
     student = student_training(args)
     assert (student.num_envs, student.env.settle_pool) == (512, args.env.settle_pool // 2)
+    assert train.parse_args(["--num-envs", "3"]).train.student_num_envs == 2  # rounded
+    assert train.parse_args(["--num-envs", "1"]).train.student_num_envs == 1
+    whole = train.parse_args(["--student-num-envs", "0"])  # the flag: the teacher's envs
+    assert whole.train.student_num_envs == 0 and student_training(whole).num_envs == 1024
+    for alone in (["--student-iterations", "0"], ["--no-teacher"]):  # no student to size
+        assert train.parse_args(alone).train.student_num_envs == 0
 
 
 def test_a_teacher_may_read_only_the_ground_under_its_feet(tmp_path):

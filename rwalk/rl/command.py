@@ -126,7 +126,8 @@ def _from_preset(cls: type, preset: Preset, argv: list[str], num_envs: int, run:
     teacher = peek(argv, "teacher") is not False and not peek(argv, "distill")
     student = peek(argv, "student_iterations") != "0"
     plain = next(f for f in dataclasses.fields(cls) if f.name == "train").default_factory()
-    train = dataclasses.replace(plain, **recipe.train_fields(teacher=teacher, student=student))
+    fields = recipe.train_fields(num_envs, teacher=teacher, student=student)
+    train = dataclasses.replace(plain, **fields)
     run = dataclasses.replace(run, max_iterations=recipe.max_iterations)
     return cls(env=env, preset=preset, num_envs=num_envs, train=train, run=run)
 

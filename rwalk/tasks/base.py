@@ -60,6 +60,9 @@ class Recipe:
     observation_noise: dict[str, float] = dataclasses.field(default_factory=dict)
     """``ObservationNoise`` half-widths that differ from the robust world's
     (--env.observation-noise.torso-forward-speed 0.045: ``{"torso_forward_speed": 0.045}``)."""
+    student_env_share: float = 1.0
+    """The one command's student's envs as a share of --num-envs (--student-num-envs; 1:
+    the teacher's)."""
 
     #: ``train``'s fields that make a teacher and its student: left out where the command
     #: line trains neither (--no-teacher, --distill), so that those flags work alone.
@@ -85,12 +88,17 @@ class Recipe:
                                    randomization=physics, residual_scale=scale,
                                    observation_noise=noise)  # fmt: skip
 
-    def train_fields(self, *, teacher: bool = True, student: bool = True) -> dict[str, Any]:
-        """``train``, without the teacher's and student's fields where not ``teacher``, and
-        without the student's where not ``student``."""
+    def train_fields(self, num_envs: int, *, teacher: bool = True,
+                     student: bool = True) -> dict[str, Any]:  # fmt: skip
+        """``train`` for a teacher on ``num_envs`` envs, without the teacher's and student's
+        fields where not ``teacher``, and without the student's where not ``student``;
+        where it trains both, its student on ``student_env_share`` of the envs."""
         left_out = (() if teacher else self.TEACHER_FIELDS) + (
             () if student else self.STUDENT_FIELDS)  # fmt: skip
-        return {k: v for k, v in self.train.items() if k not in left_out}
+        fields = {k: v for k, v in self.train.items() if k not in left_out}
+        if teacher and student and self.student_env_share != 1:
+            fields["student_num_envs"] = max(1, round(num_envs * self.student_env_share))
+        return fields
 
 
 class Task:

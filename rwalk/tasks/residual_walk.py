@@ -35,7 +35,8 @@ class ResidualWalk(Task):
     # of their gain and torque, a latency of 0-3 substeps and actions of +-30 mm (weak
     # servos met issue 32's floors with them on two seeds), and three times the noise on
     # the forward speed the policy reads (the delayed loop runs through it: latency's
-    # error down on four seeds; docs/learning.md)
+    # error down on four seeds), its student on half the teacher's envs (the same floors
+    # on four teachers in about half the student's time; docs/learning.md)
     recipe = Recipe(
         costs={"power": 2.0}, shaping={"tracking": 300.0, "sigma": 0.02},
         terrain_kinds=("flat", "rough", "slopes", "steps", "stones"),
@@ -45,6 +46,7 @@ class ResidualWalk(Task):
         max_iterations=420,
         randomization={"kp_scale": (0.75, 1.15), "force_scale": (0.75, 1.15), "latency": (0, 3)},
         residual_scale=0.03, observation_noise={"torso_forward_speed": 0.045},
+        student_env_share=0.5,
     )  # fmt: skip
 
     def __init__(self, config, world, num_envs: int) -> None:
