@@ -274,9 +274,10 @@ class TrainConfig:
     student_actor: str = "gru"
     """--student-iterations: the student's model (mlp, gru, lstm)"""
     student_num_envs: int = 0
-    """--student-iterations: the student's number of envs (0: the teacher's --num-envs; its
-    settled-start pool scales with it, and with --distill-levels each env starts on the
-    level of one of its teacher's on the same kind of tile)"""
+    """--student-iterations: the student's number of envs (0: the teacher's --num-envs; the
+    residual recipe's default: half of it; its settled-start pool scales with it, and with
+    --distill-levels each env starts on the level of one of its teacher's on the same kind
+    of tile)"""
     distill_levels: bool = False
     """--distill, --student-iterations: the student's curriculum starts where its teacher's
     checkpoint left it (each env on its teacher's terrain level; with another number of
