@@ -67,10 +67,10 @@ class Recipe:
     #: ``train``'s fields that make a teacher and its student: left out where the command
     #: line trains neither (--no-teacher, --distill), so that those flags work alone.
     TEACHER_FIELDS = ("teacher", "teacher_obs", "student_iterations", "student_actor",
-                      "distill_levels")  # fmt: skip
+                      "distill_levels", "student_num_envs")  # fmt: skip
     #: ``train``'s fields of the student alone: left out too where the command line trains
     #: no student (--student-iterations 0), so that a teacher trains alone.
-    STUDENT_FIELDS = ("distill_levels",)
+    STUDENT_FIELDS = ("distill_levels", "student_num_envs")
 
     def env(self, env: EnvConfig) -> EnvConfig:
         """``env`` (a robust training's) as this recipe trains it: its gait costs (over
@@ -90,15 +90,15 @@ class Recipe:
 
     def train_fields(self, num_envs: int, *, teacher: bool = True,
                      student: bool = True) -> dict[str, Any]:  # fmt: skip
-        """``train`` for a teacher on ``num_envs`` envs, without the teacher's and student's
-        fields where not ``teacher``, and without the student's where not ``student``;
-        where it trains both, its student on ``student_env_share`` of the envs."""
+        """``train`` for a teacher on ``num_envs`` envs (its student on
+        ``student_env_share`` of them), without the teacher's and student's fields where
+        not ``teacher``, and without the student's where not ``student``."""
+        fields = dict(self.train)
+        if self.student_env_share != 1:
+            fields["student_num_envs"] = max(1, round(num_envs * self.student_env_share))
         left_out = (() if teacher else self.TEACHER_FIELDS) + (
             () if student else self.STUDENT_FIELDS)  # fmt: skip
-        fields = {k: v for k, v in self.train.items() if k not in left_out}
-        if teacher and student and self.student_env_share != 1:
-            fields["student_num_envs"] = max(1, round(num_envs * self.student_env_share))
-        return fields
+        return {k: v for k, v in fields.items() if k not in left_out}
 
 
 class Task:
