@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import typing
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
+from typing import Any
 
 from rwalk.commands import CommandCurriculum
 from rwalk.constants import EPISODE_STEPS, SETTLE_STEPS
@@ -265,3 +269,33 @@ def convert(kind: type[EnvConfig], config: EnvConfig, **extra) -> EnvConfig:
     ``extra`` (``kind``'s own fields; the others at their defaults)."""
     base = {f.name: getattr(config, f.name) for f in fields(EnvConfig)}
     return kind(**(base | extra))
+
+
+def part_type(kind: type, name: str) -> type | None:
+    """The dataclass that field ``name`` of the dataclass ``kind`` holds where it holds one
+    (``GaitCosts`` for ``EnvConfig``'s ``costs: GaitCosts | None``), else None."""
+    hint = typing.get_type_hints(kind)[name]
+    parts = [k for k in (hint, *typing.get_args(hint)) if dataclasses.is_dataclass(k)]
+    return parts[0] if parts else None
+
+
+def with_fields(config: Any, values: Mapping[str, Any]) -> Any:
+    """``config`` with each field that ``values`` names by its dotted path set to its
+    value, in order (``{"costs.power": 2.0, "randomization.latency": (0, 3)}``: the paths
+    of --env.costs.power and --env.randomization.latency; a path may end in a field of a
+    NamedTuple); a part that is None starts at its type's defaults, as where a flag names
+    a field of it. Each part made is checked as a flag's is (its ``__post_init__``)."""
+    for path, value in values.items():
+        config = _with_field(config, path.split("."), value)
+    return config
+
+
+def _with_field(config: Any, names: list[str], value: Any) -> Any:
+    name, rest = names[0], names[1:]
+    if rest:
+        part = getattr(config, name)
+        part = part_type(type(config), name)() if part is None else part
+        value = _with_field(part, rest, value)
+    if isinstance(config, tuple):  # a NamedTuple
+        return config._replace(**{name: value})
+    return dataclasses.replace(config, **{name: value})

@@ -11,10 +11,11 @@ import pytest
 import torch
 
 from rwalk import episodes, presets
-from rwalk.config import EnvConfig
+from rwalk.config import EnvConfig, with_fields
 from rwalk.core import Core
 from rwalk.machine import describe
-from rwalk.rewards import Shaping
+from rwalk.randomization import Randomization
+from rwalk.rewards import GaitCosts, Shaping
 from rwalk.rl import record
 from rwalk.rl.config import Training, student_training
 from rwalk.rl.legacy import TrainArgs, from_flags
@@ -112,6 +113,21 @@ RECIPE_FLAGS = [
     "--env.residual-scale", "0.03", "--env.observation-noise.torso-forward-speed", "0.045",
     "--student-num-envs", "3",  # half of SMALL's 6
 ]  # fmt: skip
+
+
+def test_a_recipes_fields_are_set_by_their_paths_a_missing_part_at_its_defaults():
+    plain = EnvConfig()
+    assert plain.costs is None and plain.randomization is None
+    made = with_fields(plain, {"costs.power": 2.0, "randomization.latency": (0, 3),
+                               "residual_scale": 0.03})  # fmt: skip
+    assert made.costs == dataclasses.replace(GaitCosts(), power=2.0)
+    assert made.randomization == dataclasses.replace(Randomization(), latency=(0, 3))
+    assert made.residual_scale == 0.03 and plain.costs is None  # a new config
+    narrow = with_fields(AdaptiveGaitConfig(), {"bounds.body_height.low": 0.06})
+    assert narrow.bounds.body_height == (0.06, 0.09, 0.001)  # a field of a NamedTuple
+    assert narrow.bounds.step_height == AdaptiveGaitConfig().bounds.step_height
+    with pytest.raises(ValueError, match=r"GaitCosts.power must be a finite number.*nan"):
+        with_fields(plain, {"costs.power": float("nan")})  # checked as the flag is
 
 
 def test_the_default_training_is_the_recipe_that_its_flags_give():

@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-import typing
 from pathlib import Path
 from typing import Any
 
 from rwalk.cli import parse, usage_error
+from rwalk.config import part_type
 from rwalk.rl.config import Preset, symmetry_refusal
 from rwalk.validation import flag
 
@@ -60,12 +60,11 @@ def with_parts_named(config: Any, argv: list[str], prefix: str = "--") -> Any:
     """``config`` with every part that is None but named by a flag of ``argv``
     (``--env.costs.clearance``) at its type's defaults (``GaitCosts()``)."""
     changes = {}
-    hints = typing.get_type_hints(type(config))
     for f in dataclasses.fields(config):
         value, name = getattr(config, f.name), f"{prefix}{f.name.replace('_', '-')}"
-        kinds = [k for k in typing.get_args(hints[f.name]) if dataclasses.is_dataclass(k)]
-        if value is None and kinds and any(t.startswith(name + ".") for t in argv):
-            value = changes[f.name] = kinds[0]()
+        kind = part_type(type(config), f.name)
+        if value is None and kind and any(t.startswith(name + ".") for t in argv):
+            value = changes[f.name] = kind()
         if dataclasses.is_dataclass(value):
             inner = with_parts_named(value, argv, name + ".")
             if inner is not value:

@@ -23,11 +23,10 @@ from torch import Tensor
 
 from rwalk import rng
 from rwalk.commands import CommandWeights
-from rwalk.config import EnvConfig, convert
-from rwalk.levels import TerrainLevels
+from rwalk.config import EnvConfig, convert, with_fields
 from rwalk.mirror import Mirror
 from rwalk.observations import COMMON_PIECES, PRIVILEGED_PIECES, ObsPiece, piece_catalog
-from rwalk.rewards import GaitCosts, RewardTerm, Shaping, cost_terms, shaping_terms, spec_terms
+from rwalk.rewards import RewardTerm, cost_terms, shaping_terms, spec_terms
 from rwalk.world import World
 
 #: Random stream of the per-episode velocity commands (see ``rwalk.rng``).
@@ -40,26 +39,15 @@ class Recipe:
     precise``): what it changes from the plain defaults, each a flag's value; the run's
     record holds them resolved, as it holds every flag (docs/learning.md)."""
 
-    costs: dict[str, float]
-    """The gait costs in the reward: ``GaitCosts`` fields that differ from its defaults
-    (--costs --env.costs.power 2: ``{"power": 2.0}``)."""
-    shaping: dict[str, float]
-    """The training reward's shaping from the first iteration: ``Shaping`` fields
-    (--env.shaping.tracking 300: ``{"tracking": 300.0}``); empty: none."""
-    terrain_kinds: tuple[str, ...]
-    """The terrain-levels map's kinds of tile (--terrain-kinds)."""
+    env_fields: dict[str, Any]
+    """The env config's fields it sets, each by its flag's path after --env. with
+    underscores (--env.costs.power 2: ``{"costs.power": 2.0}``; --terrain-kinds, short for
+    --env.terrain-levels.kinds: ``"terrain_levels.kinds"``); a part the robust world
+    leaves out (the gait costs, the shaping) starts at its defaults (``with_fields``)."""
     train: dict[str, Any]
     """``TrainConfig`` fields (--teacher: ``{"teacher": True}``)."""
     max_iterations: int
     """--max-iterations (the teacher's, where ``train`` trains one)."""
-    randomization: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
-    """``Randomization`` ranges that differ from the robust world's
-    (--env.randomization.latency 0 3: ``{"latency": (0, 3)}``)."""
-    residual_scale: float | None = None
-    """--env.residual-scale (None: the env's own, the spec's)."""
-    observation_noise: dict[str, float] = dataclasses.field(default_factory=dict)
-    """``ObservationNoise`` half-widths that differ from the robust world's
-    (--env.observation-noise.torso-forward-speed 0.045: ``{"torso_forward_speed": 0.045}``)."""
     student_env_share: float = 1.0
     """The one command's student's envs as a share of --num-envs (--student-num-envs; 1:
     the teacher's)."""
@@ -73,20 +61,8 @@ class Recipe:
     STUDENT_FIELDS = ("distill_levels", "student_num_envs")
 
     def env(self, env: EnvConfig) -> EnvConfig:
-        """``env`` (a robust training's) as this recipe trains it: its gait costs (over
-        --costs' defaults), shaping, terrain kinds, physics ranges, action scale and
-        observation noise."""
-        costs = dataclasses.replace(env.costs or GaitCosts(), **self.costs)
-        shaping = Shaping(**self.shaping) if self.shaping else env.shaping
-        levels = dataclasses.replace(env.terrain_levels or TerrainLevels(),
-                                     kinds=self.terrain_kinds)  # fmt: skip
-        physics = dataclasses.replace(env.randomization, **self.randomization)
-        scale = env.residual_scale if self.residual_scale is None else self.residual_scale
-        noise = env.observation_noise
-        noise = noise if noise is None else dataclasses.replace(noise, **self.observation_noise)
-        return dataclasses.replace(env, costs=costs, shaping=shaping, terrain_levels=levels,
-                                   randomization=physics, residual_scale=scale,
-                                   observation_noise=noise)  # fmt: skip
+        """``env`` (a robust training's) as this recipe trains it."""
+        return with_fields(env, self.env_fields)
 
     def train_fields(self, num_envs: int, *, teacher: bool = True,
                      student: bool = True) -> dict[str, Any]:  # fmt: skip

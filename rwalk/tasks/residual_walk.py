@@ -38,15 +38,17 @@ class ResidualWalk(Task):
     # error down on four seeds), its student on half the teacher's envs (the same floors
     # on four teachers in about half the student's time; docs/learning.md)
     recipe = Recipe(
-        costs={"power": 2.0}, shaping={"tracking": 300.0, "sigma": 0.02},
-        terrain_kinds=("flat", "rough", "slopes", "steps", "stones"),
+        env_fields={
+            "costs.power": 2.0, "shaping.tracking": 300.0, "shaping.sigma": 0.02,
+            "terrain_levels.kinds": ("flat", "rough", "slopes", "steps", "stones"),
+            "randomization.kp_scale": (0.75, 1.15), "randomization.force_scale": (0.75, 1.15),
+            "randomization.latency": (0, 3), "residual_scale": 0.03,
+            "observation_noise.torso_forward_speed": 0.045,
+        },
         train={"teacher": True, "teacher_obs": ("physics", "heights_under_feet"),
                "student_iterations": 160, "student_actor": "gru", "distill_levels": True,
                "late_iterations": 0},
-        max_iterations=420,
-        randomization={"kp_scale": (0.75, 1.15), "force_scale": (0.75, 1.15), "latency": (0, 3)},
-        residual_scale=0.03, observation_noise={"torso_forward_speed": 0.045},
-        student_env_share=0.5,
+        max_iterations=420, student_env_share=0.5,
     )  # fmt: skip
 
     def __init__(self, config, world, num_envs: int) -> None:
