@@ -247,8 +247,8 @@ def test_resume_takes_the_runs_task_and_refuses_contradicting_flags(tmp_path):
     folder = tmp_path / "adaptive"
     tiny = ["--num-envs", "4", "--num-steps-per-env", "4", "--settle-steps", "2",
             "--max-episode-steps", "20", "--save-interval", "1", "--no-export"]  # fmt: skip
-    train.main([*tiny, "--task", "adaptive_gait", "--hidden-dims", "8", "--max-iterations", "1",
-                "--log-dir", str(folder)])  # fmt: skip
+    train.main([*tiny, "--task", "adaptive_gait", "--recipe", "plain", "--hidden-dims", "8",
+                "--max-iterations", "1", "--log-dir", str(folder)])  # fmt: skip
     saved = json.loads((folder / "config.json").read_text())
     # No --task, no --hidden-dims: the run's own come back (it used to fail on the shapes).
     train.main([*tiny, "--resume", str(folder), "--max-iterations", "2", "--log-dir", str(folder)])

@@ -182,13 +182,46 @@ def test_a_teacher_alone_needs_no_more_flags(flags):
 
 
 @pytest.mark.parametrize(
-    "flags", [["--recipe", "plain"], ["--no-robust"], ["--task", "adaptive_gait"]]
-)
-def test_only_the_robust_residual_task_has_a_recipe(flags):
+    "flags",
+    [["--recipe", "plain"], ["--no-robust"], ["--task", "adaptive_gait", "--recipe", "plain"],
+     ["--task", "adaptive_gait", "--no-robust"]],
+)  # fmt: skip
+def test_only_a_robust_world_trains_its_tasks_recipe(flags):
     training = train.parse_args([*SMALL, *flags])
     assert not training.train.teacher and training.run.max_iterations == 300
     assert training.env.costs is None
     assert training.preset.own_recipe is None
+
+
+#: The adaptive task's recipe (AdaptiveGait.recipe) as the flags docs/adaptive.md gave
+#: before it was one (the adaptive default's command of 2026-12-07).
+ADAPTIVE_RECIPE_FLAGS = [
+    "--task", "adaptive_gait", "--recipe", "plain", "--costs", "--command-range", "0.03",
+    "0.27", "--terrain-kinds", "flat", "rough", "slopes", "steps", "stones",
+    "--max-iterations", "500", "--env.bounds.body-height.low", "0.0699",
+    "--env.bounds.body-height.high", "0.0701", "--env.bounds.step-length.low", "0.04",
+    "--env.bounds.cycle-time.low", "0.45", "--env.costs.power", "2",
+    "--env.shaping.tracking", "300", "--env.shaping.sigma", "0.02", "--gait-action",
+    "schedule", "--env.gait.step-height", "0.013", "--env.gait.duty-factor", "0.6",
+    "--env.schedule-step-rise", "0.04", "--env.schedule-window", "0", "0.25", "0.25", "1",
+    "--teacher", "--student-iterations", "190", "--student-actor", "gru",
+    "--distill-levels", "--student-num-envs", "3",  # half of SMALL's 6
+]  # fmt: skip
+
+
+def test_the_adaptive_task_trains_its_default_from_its_recipe():
+    default = train.parse_args([*SMALL, "--task", "adaptive_gait"])
+    given = train.parse_args([*SMALL, *ADAPTIVE_RECIPE_FLAGS])
+    assert default.preset.recipe == "precise" and default.preset.own_recipe is not None
+    assert default.env == given.env
+    assert (default.train, default.run) == (given.train, given.run)
+    # the flags given on top of the recipe set the same values: the same run
+    on_top = ["--task", "adaptive_gait", *ADAPTIVE_RECIPE_FLAGS[4:]]  # without --recipe plain
+    assert train.parse_args([*SMALL, *on_top]).env == given.env
+    narrower = train.parse_args([*SMALL, "--task", "adaptive_gait", "--command-range",
+                                 "0.05", "0.25", "--no-teacher"])  # fmt: skip
+    assert narrower.env.command_range == (0.05, 0.25) and not narrower.train.teacher
+    assert narrower.env.gait_action == "schedule" and narrower.run.max_iterations == 500
 
 
 def test_a_recipe_not_known_and_a_recipe_torchrl_does_not_train_are_refused(capsys):
@@ -214,7 +247,10 @@ def test_a_record_from_before_the_recipe_reads_as_the_plain_training(tmp_path):
 def test_a_student_is_blind_and_trains_in_its_teachers_world():
     runs = trainings()
     teacher, student = runs["adaptive teacher"], runs["student"]
-    assert student.env == teacher.env and student.train.distill == teacher.run.log_dir
+    # (the adaptive recipe's student on half its teacher's envs, its settled starts too)
+    assert student.num_envs == teacher.train.student_num_envs == 3
+    assert student.env == dataclasses.replace(teacher.env, settle_pool=student.env.settle_pool)
+    assert student.train.distill == teacher.run.log_dir
     assert "physics" in teacher.train.policy_obs and "physics" not in student.train.policy_obs
     assert student.run.log_dir == str(Path(teacher.run.log_dir) / "student")
 

@@ -507,17 +507,19 @@ class Preset:
     costs: bool = False
     """add the gait costs to the reward (--env.costs.*: swing clearance below a target above
     the ground, feet slipping, servo power; rwalk.rewards.GaitCosts); --recipe precise
-    adds them to residual_walk's robust training either way"""
+    adds them to either task's robust training either way"""
     settle_pool_fraction: float = SETTLE_POOL_FRACTION
     """settled starts kept ready, as a fraction of --num-envs (--env.settle-pool: a count)"""
     recipe: str = "precise"
-    """how the task trains in the robust world: precise (residual_walk: a teacher that reads
-    the drawn physics and the ground under its feet, then its blind GRU student, with the
+    """how the task trains in the robust world: precise (the task's default, Task.recipe,
+    each of its values a flag that may be set; residual_walk: a teacher that reads the
+    drawn physics and the ground under its feet, then its blind GRU student, with the
     gait costs, the speed kernel, wider servo and latency ranges, actions of +-30 mm and
-    three times the noise on the forward speed it reads:
-    Task.recipe, docs/learning.md; each of its values a flag that may be set) or plain
-    (PPO alone, the late kernel); a task without a recipe (adaptive_gait) and --no-robust
-    train plain"""
+    three times the noise on the forward speed it reads, docs/learning.md; adaptive_gait:
+    the gait the command asks for within narrowed bounds, commands of 0.03-0.27 m/s, the
+    gait costs and the speed kernel, a teacher that reads the ground and its blind GRU
+    student, docs/adaptive.md) or plain (PPO alone, the late kernel); --no-robust trains
+    plain"""
 
     def __post_init__(self) -> None:
         get_task(self.task)  # ValueError listing the known tasks

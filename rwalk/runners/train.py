@@ -2,7 +2,8 @@
 
     rwalk-train                                  # the default: a teacher, then its student (README)
     rwalk-train --recipe plain                   # PPO alone, 300 iterations
-    rwalk-train --task adaptive_gait --command-range 0.05 0.25
+    rwalk-train --task adaptive_gait             # its default: a teacher, then its student
+    rwalk-train --task adaptive_gait --recipe plain --command-range 0.05 0.25
     rwalk-train --max-minutes 30 --max-iterations 100000
     rwalk-train --resume logs/rwalk --max-iterations 200     # newest checkpoint there
     rwalk-train --resume logs/rwalk/model_49.pt --max-iterations 200
@@ -24,11 +25,12 @@ differ): ranks that differ refuse to start, naming the flags.
 
 Every flag is a field of the training's configs (rwalk.rl.config.Training): the
 preset (--task, --robust/--no-robust, --costs, --recipe) picks the task, the world and,
-for residual_walk's robust world, the recipe (--recipe precise: a teacher that reads
-the physics and the ground under its feet, then its blind GRU student in
+for a robust world, the task's recipe (--recipe precise; residual_walk: a teacher that
+reads the physics and the ground under its feet, then its blind GRU student in
 LOG_DIR/student, with the gait costs and the speed kernel, servos drawn from 0.75-1.15
-of their gain and torque, 0-3 substeps of latency and actions of +-30 mm; each of its
-values a flag that may be set; rwalk.tasks.base.Recipe); every
+of their gain and torque, 0-3 substeps of latency and actions of +-30 mm;
+adaptive_gait: docs/adaptive.md's default, the gait the command asks for, a teacher and
+its student; each of its values a flag that may be set; rwalk.tasks.base.Recipe); every
 field of the task's env config is a flag of its own (--env.costs.clearance 3000,
 --env.randomization.friction 0.5 1.3, --env.terrain-levels.demote 0.3; short names
 for common ones: --settle-steps, --command-range, --terrain-kinds, ...); rsl-rl's

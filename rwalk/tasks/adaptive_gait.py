@@ -44,7 +44,7 @@ from rwalk.gait import BezierGaitController, GaitParameters, GaitShape, advance_
 from rwalk.gaitmath import MAX_STEP_RISE, speed_schedule
 from rwalk.mirror import Mirror
 from rwalk.observations import ObsPiece
-from rwalk.tasks.base import Task
+from rwalk.tasks.base import Recipe, Task
 
 #: Random stream of the starting parameters with ``start_spread`` (see ``rwalk.rng``).
 START_GAIT_STREAM = "gait_start"
@@ -238,6 +238,26 @@ class AdaptiveGait(Task):
     action_fields = ("bounds", "gait_action", "schedule_stride", "schedule_window",
                      "schedule_step_rise")  # fmt: skip
     acting_fields = (*Task.acting_fields, *action_fields)
+    # the adaptive default (docs/adaptive.md, "Training: one command"): commands of
+    # 0.03-0.27 m/s on all five kinds of tile; the body pinned at the trot's 70 mm, the
+    # stride at least 40 mm and the cycle at least 0.45 s; the gait the command asks for
+    # (the schedule), its step 13 mm at v* rising 40 mm per m/s and no wider, each foot
+    # down for 60% of the cycle; the gait costs with power x2 and the speed kernel; a
+    # teacher that reads the ground, then its blind GRU student on half its envs
+    recipe = Recipe(
+        env_fields={
+            "command_range": (0.03, 0.27),
+            "terrain_levels.kinds": ("flat", "rough", "slopes", "steps", "stones"),
+            "bounds.body_height.low": 0.0699, "bounds.body_height.high": 0.0701,
+            "bounds.step_length.low": 0.04, "bounds.cycle_time.low": 0.45,
+            "costs.power": 2.0, "shaping.tracking": 300.0, "shaping.sigma": 0.02,
+            "gait_action": "schedule", "gait.step_height": 0.013, "gait.duty_factor": 0.6,
+            "schedule_step_rise": 0.04, "schedule_window": (0.0, 0.25, 0.25, 1.0),
+        },
+        train={"teacher": True, "student_iterations": 190, "student_actor": "gru",
+               "distill_levels": True},
+        max_iterations=500, student_env_share=0.5,
+    )  # fmt: skip
 
     @classmethod
     def training_config(cls, world: EnvConfig) -> EnvConfig:
