@@ -331,6 +331,25 @@ def test_the_stage_at_the_models_physics_is_the_tasks_own_and_written_out(
 
 
 @pytest.mark.parametrize(
+    ("flags", "stage", "keep"),
+    [([], 140, ("friction",)),  # the residual recipe's student: its teacher's 140 of 160
+     (["--student-nominal-physics-iterations", "0"], 0, ()),
+     (["--student-nominal-physics-iterations", "30"], 30, ("friction",)),
+     (["--task", "adaptive_gait"], 0, ()),  # its teacher has none
+     (["--task", "adaptive_gait", "--student-nominal-physics-iterations", "170"], 170,
+      ("friction",))],
+)  # fmt: skip
+def test_the_students_stage_at_the_models_physics_is_its_teachers_unless_it_has_its_own(
+    flags, stage, keep
+):
+    teacher = train.parse_args([*SMALL, *flags])
+    student = student_training(teacher)
+    assert student.train.nominal_physics_iterations == stage
+    assert student.train.nominal_physics_keep == keep
+    assert student.train.student_nominal_physics_iterations is None  # a student has none
+
+
+@pytest.mark.parametrize(
     ("flags", "late", "tracking", "sigma"),
     [([], 50, 200.0, None), (["--max-iterations", "600"], 100, 200.0, None),
      (["--late-tracking", "300"], 50, 300.0, None), (["--late-sigma", "0.04"], 50, 200.0, 0.04),

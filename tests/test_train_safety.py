@@ -493,6 +493,14 @@ def test_the_time_budget_does_not_count_building_the_envs_as_an_iteration(tmp_pa
             "--env.schedule-window must be 4 fractions in [0, 1]",
         ),
         (
+            ["--student-nominal-physics-iterations", "-1"],
+            "--student-nominal-physics-iterations must be >= 0, got -1",
+        ),
+        (
+            ["--recipe", "plain", "--student-nominal-physics-iterations", "5"],
+            "--student-nominal-physics-iterations 5 needs --student-iterations",
+        ),
+        (
             ["--task", "adaptive_gait", "--gait-action", "schedule", "--command-range", "0", "1"],
             "--gait-action 'schedule' needs forward target velocities (> 0 m/s); "
             "command_range (0.0, 1.0) asks for 0.0",

@@ -278,6 +278,11 @@ class TrainConfig:
     residual recipe's default: half of it; its settled-start pool scales with it, and with
     --distill-levels each env starts on the level of one of its teacher's on the same kind
     of tile)"""
+    student_nominal_physics_iterations: int | None = None
+    """--student-iterations: the student's last N iterations draw the model's physics (as
+    --nominal-physics-iterations does the teacher's, --nominal-physics-keep's ranges kept);
+    None: the teacher's resolved --nominal-physics-iterations (residual_walk's recipe: 140
+    of the student's 160, from its iteration 20; adaptive_gait's: none; docs/learning.md)"""
     distill_levels: bool = False
     """--distill, --student-iterations: the student's curriculum starts where its teacher's
     checkpoint left it (each env on its teacher's terrain level; with another number of
@@ -304,7 +309,9 @@ class TrainConfig:
             raise ValueError(f"--critic must be one of {', '.join(ACTORS)} (or '' for the "
                              f"actor's), got {self.critic!r}")  # fmt: skip
         require_at_least(self, 1, "rnn_hidden_dim", "gradient_length")
-        stage = () if self.nominal_physics_iterations is None else ("nominal_physics_iterations",)
+        stage = tuple(name for name in ("nominal_physics_iterations",
+                                        "student_nominal_physics_iterations")
+                      if getattr(self, name) is not None)  # fmt: skip
         require_at_least(self, 0, "student_iterations", "student_num_envs", "finetune_iterations",
                          "finetune_num_envs", *stage)  # fmt: skip
         if self.nominal_physics_entropy_coef is not None:
@@ -361,9 +368,10 @@ class TrainConfig:
             raise ValueError(f"--finetune-iterations {self.finetune_iterations} needs "
                              "--student-iterations or --distill: it fine-tunes a distilled "
                              "student")  # fmt: skip
-        if self.student_num_envs and not self.student_iterations:
-            raise ValueError(f"--student-num-envs {self.student_num_envs} needs "
-                             "--student-iterations: it sizes the student")  # fmt: skip
+        for name in ("student_num_envs", "student_nominal_physics_iterations"):
+            if getattr(self, name) and not self.student_iterations:
+                raise ValueError(f"{show_flag(name, getattr(self, name))} needs "
+                                 "--student-iterations: it sets the student's stage")  # fmt: skip
         if self.finetune_num_envs and not self.finetune_iterations:
             raise ValueError(f"--finetune-num-envs {self.finetune_num_envs} needs "
                              "--finetune-iterations: it sizes the fine-tune")  # fmt: skip
@@ -670,7 +678,9 @@ def resolved(training: Training) -> Training:
     if stage is None:
         share = task.nominal_physics_share if training.env.randomization is not None else 0
         stage = round(share * training.run.max_iterations)
-    keep = training.train.nominal_physics_keep if stage else ()  # no stage keeps nothing
+    # no stage (the teacher's nor its student's) keeps nothing
+    students = training.train.student_nominal_physics_iterations
+    keep = training.train.nominal_physics_keep if stage or students else ()
     # a stage's entropy bonus is PPO's: none without a stage, none for a distilled student
     ppo = stage and not training.train.distill
     entropy = training.train.nominal_physics_entropy_coef if ppo else None
@@ -743,6 +753,8 @@ def student_training(teacher: Training) -> Training:
         teacher.train, teacher=False, teacher_obs=PRIVILEGED_PIECES, distill=teacher.run.log_dir,
         warm_start="", policy_obs=blind,
         actor=teacher.train.student_actor, student_iterations=0, student_num_envs=0,
+        nominal_physics_iterations=_student_stage(teacher.train),
+        student_nominal_physics_iterations=None,
         symmetry=False, critic_obs=(), critic="", warm_start_critic="", warm_start_levels=False,
         late_iterations=0, flat_kinds=(), flat_from=0, flat_until=None,
         **dict.fromkeys(LATE_VALUES),
@@ -755,6 +767,13 @@ def student_training(teacher: Training) -> Training:
     envs = teacher.train.student_num_envs or teacher.num_envs
     return resolved(dataclasses.replace(teacher, train=train, run=run, num_envs=envs,
                                         env=_settle_pool_for(teacher, envs)))  # fmt: skip
+
+
+def _student_stage(teacher: TrainConfig) -> int:
+    """The one command's student's iterations at the model's physics: its own
+    --student-nominal-physics-iterations, else its (resolved) teacher's count."""
+    own = teacher.student_nominal_physics_iterations
+    return teacher.nominal_physics_iterations if own is None else own
 
 
 def _settle_pool_for(training: Training, envs: int) -> EnvConfig:

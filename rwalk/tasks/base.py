@@ -55,10 +55,11 @@ class Recipe:
     #: ``train``'s fields that make a teacher and its student: left out where the command
     #: line trains neither (--no-teacher, --distill), so that those flags work alone.
     TEACHER_FIELDS = ("teacher", "teacher_obs", "student_iterations", "student_actor",
-                      "distill_levels", "student_num_envs")  # fmt: skip
+                      "distill_levels", "student_num_envs",
+                      "student_nominal_physics_iterations")  # fmt: skip
     #: ``train``'s fields of the student alone: left out too where the command line trains
     #: no student (--student-iterations 0), so that a teacher trains alone.
-    STUDENT_FIELDS = ("distill_levels", "student_num_envs")
+    STUDENT_FIELDS = ("distill_levels", "student_num_envs", "student_nominal_physics_iterations")
 
     def env(self, env: EnvConfig) -> EnvConfig:
         """``env`` (a robust training's) as this recipe trains it."""
