@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import typing
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from typing import Any
 
 from rwalk.commands import CommandCurriculum
@@ -275,7 +274,7 @@ def part_type(kind: type, name: str) -> type | None:
     """The dataclass that field ``name`` of the dataclass ``kind`` holds where it holds one
     (``GaitCosts`` for ``EnvConfig``'s ``costs: GaitCosts | None``), else None."""
     hint = typing.get_type_hints(kind)[name]
-    parts = [k for k in (hint, *typing.get_args(hint)) if dataclasses.is_dataclass(k)]
+    parts = [k for k in (hint, *typing.get_args(hint)) if is_dataclass(k)]
     return parts[0] if parts else None
 
 
@@ -298,4 +297,4 @@ def _with_field(config: Any, names: list[str], value: Any) -> Any:
         value = _with_field(part, rest, value)
     if isinstance(config, tuple):  # a NamedTuple
         return config._replace(**{name: value})
-    return dataclasses.replace(config, **{name: value})
+    return replace(config, **{name: value})

@@ -132,6 +132,21 @@ def test_the_default_recipe_trains_a_teacher_then_its_blind_gru_student(tmp_path
     assert [it for it, _ in checkpoint_files(folder / "student")] == [0, 1]
 
 
+def test_the_adaptive_recipe_trains_a_teacher_then_its_student_on_the_schedule(tmp_path):
+    folder = tmp_path / "adaptive"
+    precise = [flag for flag in TINY if flag not in ("--recipe", "plain")]
+    train.main([*precise, "--task", "adaptive_gait", "--max-iterations", "2",
+                "--student-iterations", "2", "--log-dir", str(folder)])  # fmt: skip
+    teacher = json.loads((folder / "config.json").read_text())
+    assert teacher["preset"]["task"] == "adaptive_gait" and teacher["train"]["teacher"]
+    assert teacher["env"]["gait_action"] == "schedule"
+    assert teacher["env"]["bounds"]["body_height"][:2] == [0.0699, 0.0701]
+    student = json.loads((folder / "student" / "config.json").read_text())
+    assert student["num_envs"] == 4 and student["train"]["actor"] == "gru"  # half of 8
+    assert student["env"]["gait_action"] == "schedule"
+    assert [it for it, _ in checkpoint_files(folder / "student")] == [0, 1]
+
+
 def test_the_default_recipe_distils_its_student_on_half_the_envs():
     args = train.parse_args([])
     assert (args.num_envs, args.train.student_iterations, args.train.student_num_envs) == (
