@@ -216,3 +216,8 @@ def test_the_adaptive_default_command_is_the_same_in_the_readme_and_the_docs():
     # the step pinned to the schedule, 13 mm at v* rising 40 mm per m/s, at a 0.60 duty factor
     assert args.env.schedule_step_rise == 0.04 and args.env.schedule_window[0] == 0.0
     assert args.env.gait.step_height == 0.013 and args.env.gait.duty_factor == 0.6
+    # the flags it lists for the recipe, typed with --recipe plain, train the same
+    listed = section.split("these flags with `--recipe plain`")[1].split("```")[1]
+    typed = train.parse_args([*listed.replace("\\", " ").split(), "--log-dir", "logs/adaptive"])
+    assert typed.preset.recipe == "plain" and typed.preset.own_recipe is None
+    assert (typed.env, typed.train, typed.run) == (args.env, args.train, args.run)
