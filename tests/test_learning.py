@@ -663,3 +663,44 @@ def test_by_default_the_last_third_keeps_only_friction_randomised(tmp_path, draw
     assert len(after) > 1 and draws[-1][0] == stage
     assert torch.equal(after[:, 1:], NOMINAL[1:].expand(len(after), -1))  # all but friction
     assert len(set(after[:, 0].tolist())) > 1  # friction still drawn
+
+
+def test_the_logged_mirror_loss_once_per_update_trains_the_same_bits(tmp_path, monkeypatch):
+    from rwalk.rl import runner
+
+    flags = [*TINY, "--max-iterations", "2", "--num-learning-epochs", "2",
+             "--num-mini-batches", "2"]  # fmt: skip
+    train.main([*flags, "--log-dir", str(tmp_path / "once")])
+    every_mini_batch = lambda alg: alg.symmetry.compute_loss  # noqa: E731 (rsl-rl's own)
+    monkeypatch.setattr(runner, "_mirror_loss_once_per_update", every_mini_batch)
+    train.main([*flags, "--log-dir", str(tmp_path / "every")])
+    once, every = (load_checkpoint(tmp_path / run / "model_1.pt") for run in ("once", "every"))
+    for model in ("actor_state_dict", "critic_state_dict"):
+        assert once[model].keys() == every[model].keys()
+        for name, tensor in once[model].items():
+            assert torch.equal(tensor, every[model][name]), name
+    states = [checkpoint["optimizer_state_dict"]["state"] for checkpoint in (once, every)]
+    assert states[0].keys() == states[1].keys()
+    for key, state in states[0].items():
+        for name, value in state.items():
+            assert torch.equal(torch.as_tensor(value), torch.as_tensor(states[1][key][name]))
+    logged = [read_scalars(tmp_path / run)["Loss/symmetry"] for run in ("once", "every")]
+    assert len(logged[0]) == len(logged[1]) == 2 and all(value >= 0 for *_, value in logged[0])
+
+
+def test_the_logged_mirror_loss_is_measured_once_per_update_without_autograd():
+    from types import SimpleNamespace
+
+    from rwalk.rl.runner import _mirror_loss_once_per_update
+
+    grad_enabled = []
+
+    def compute(actor, batch, original_batch_size):
+        grad_enabled.append(torch.is_grad_enabled())
+        return torch.tensor(float(len(grad_enabled)))
+
+    symmetry = SimpleNamespace(compute_loss=compute)
+    alg = SimpleNamespace(symmetry=symmetry, num_learning_epochs=2, num_mini_batches=3)
+    loss = _mirror_loss_once_per_update(alg)
+    assert [float(loss(None, None, 0)) for _ in range(12)] == [1.0] * 6 + [2.0] * 6
+    assert grad_enabled == [False, False]  # two updates of six mini-batches

@@ -18,6 +18,7 @@ import contextlib
 import functools
 import io
 
+import torch
 from rsl_rl.runners import DistillationRunner, OnPolicyRunner
 
 from rwalk.rl import distributed
@@ -44,6 +45,9 @@ class SafeRunnerMixin:
         super().__init__(*args, **kwargs)
         self.logger.log = _without_console(self.logger.log)
         self.alg.update = _with_explained_variance(self.alg)
+        symmetry = getattr(self.alg, "symmetry", None)
+        if symmetry is not None and symmetry.use_data_augmentation and not symmetry.use_mirror_loss:
+            symmetry.compute_loss = _mirror_loss_once_per_update(self.alg)
 
     def _configure_multi_gpu(self) -> None:
         """rsl-rl's multi-GPU setup for CPU processes: join a gloo group (torchrun's
@@ -152,6 +156,29 @@ def _without_console(log):
             return log(*args, **kwargs)
 
     return log_quietly
+
+
+def _mirror_loss_once_per_update(alg):
+    """rsl-rl's ``Symmetry.compute_loss`` where the mirror loss only feeds the log (data
+    augmentation without ``use_mirror_loss``): rsl-rl runs the actor over every mirrored
+    mini-batch with autograd, about a fifth of the default teacher's update, for a figure
+    no gradient uses. This measures it on each update's first mini-batch, without
+    autograd, and repeats it for the rest, so ``Loss/symmetry`` is that mini-batch's. The
+    pass has no side effects (a deterministic output, no distribution update), so training
+    is the same bits (tests/test_learning.py)."""
+    compute = alg.symmetry.compute_loss
+    per_update = alg.num_learning_epochs * alg.num_mini_batches
+    calls, measured = 0, None
+
+    def compute_loss(actor, batch, original_batch_size):
+        nonlocal calls, measured
+        if calls % per_update == 0:
+            with torch.no_grad():
+                measured = compute(actor, batch, original_batch_size)
+        calls += 1
+        return measured
+
+    return compute_loss
 
 
 def _with_explained_variance(alg):
