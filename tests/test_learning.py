@@ -68,6 +68,57 @@ def test_a_student_distils_the_teacher_and_resumes(teacher, tmp_path, actor, cap
     assert rows[0].mean_length == 10
 
 
+def test_a_smoothness_cost_shapes_the_student_and_zero_is_rsl_rls_distillation(
+        teacher, tmp_path, monkeypatch):  # fmt: skip
+    from rsl_rl.algorithms import Distillation
+
+    from rwalk.rl import distillation
+
+    def student(name: str, *flags: str) -> dict:
+        train.main([*TINY, "--distill", str(teacher), "--max-iterations", "2",
+                    "--log-dir", str(tmp_path / name), *flags])  # fmt: skip
+        return load_checkpoint(tmp_path / name / "model_1.pt")["student_state_dict"]
+
+    ours, smooth = student("ours"), student("smooth", "--distill-smoothness", "50")
+    monkeypatch.setattr(distillation, "SmoothDistillation", Distillation)
+    rsl_rl = student("rsl_rl")
+    assert all(torch.equal(tensor, rsl_rl[name]) for name, tensor in ours.items())
+    assert not all(torch.equal(tensor, smooth[name]) for name, tensor in ours.items())
+    logged = read_scalars(tmp_path / "smooth")
+    assert "Loss/smoothness" not in read_scalars(tmp_path / "ours")
+    assert len(logged["Loss/smoothness"]) == 2 and all(v > 0 for *_, v in logged["Loss/smoothness"])
+    saved = json.loads((tmp_path / "smooth" / "config.json").read_text())["train"]
+    assert saved["distill_smoothness"] == 50.0
+
+
+def test_the_smoothness_cost_pairs_the_steps_of_one_episode_within_a_pass():
+    """By hand: 2 envs, 2 action values, a rollout of 3 steps, env 1's episode ending at
+    step 0; gradient windows of 2 steps."""
+    from types import SimpleNamespace
+
+    from rwalk.rl.distillation import SmoothDistillation
+
+    alg = object.__new__(SmoothDistillation)  # the loss alone: no models, no runner
+    dones = torch.tensor([[[0], [1]], [[0], [0]], [[0], [0]]], dtype=torch.uint8)
+    alg.storage = SimpleNamespace(num_transitions_per_env=3, dones=dones)
+    alg.gradient_length, alg.smoothness = 2, 10.0
+    alg._imitation, alg._calls, alg._previous = torch.nn.functional.mse_loss, 0, None
+    alg._sums = [0.0, 0.0, 0]
+    steps = [torch.tensor(rows, requires_grad=True) for rows in
+             ([[0.0, 0.0], [1.0, 1.0]], [[1.0, 1.0], [1.0, 1.0]], [[1.0, 3.0], [2.0, 1.0]],
+              [[5.0, 5.0], [5.0, 5.0]])]  # fmt: skip
+    losses = [alg._step_loss(a, torch.zeros(2, 2)) for a in steps]
+    # step 0: mean a^2 = 0.5, nothing before it; step 1: 1, + 10 x (env 0's change 1, env 1's
+    # new episode 0) / 2; step 2: 3.75, + 10 x (2 + 0.5) / 2; step 3 starts a new pass: 25
+    assert [loss.item() for loss in losses] == [0.5, 1.0 + 5.0, 3.75 + 12.5, 25.0]
+    losses[1].backward()  # within a window: both actions of the pair
+    assert steps[0].grad is not None and steps[1].grad is not None
+    losses[2].backward()  # step 2 opens the next window: step 1's action is held
+    assert torch.equal(steps[1].grad, (2 * steps[1] / 4 + 10 * 2 * (steps[1] - steps[0]) / 4
+                                       * torch.tensor([[1.0], [0.0]])).detach())  # fmt: skip
+    assert alg._sums == [0.5 + 1.0 + 3.75 + 25.0, 0.5 + 1.25, 2]
+
+
 def test_distill_levels_starts_the_student_on_its_teachers_levels(teacher, tmp_path):
     saved = load_checkpoint(teacher / "model_1.pt")
     saved["env_state"]["terrain_level"] = torch.full_like(saved["env_state"]["terrain_level"], 5)
@@ -276,6 +327,22 @@ def test_symmetry_is_the_default_where_rsl_rl_allows_it():
         (
             ["--no-robust", "--flat-kinds", "stones"],
             "--flat-kinds stones: this training's map has the kinds none",
+        ),
+        (
+            ["--distill-smoothness", "1"],
+            "--distill-smoothness 1.0 needs --distill or --student-iterations",
+        ),
+        (
+            ["--distill", "x.pt", "--no-symmetry", "--distill-smoothness", "-1"],
+            "--distill-smoothness must be >= 0, got -1.0",
+        ),
+        (
+            ["--distill", "x.pt", "--no-symmetry", "--distill-smoothness", "nan"],
+            "--distill-smoothness must be >= 0, got nan",
+        ),
+        (
+            ["--distill", "x.pt", "--no-symmetry", "--distill-smoothness", "1e4"],
+            "--distill-smoothness must be at most 1000, got 10000.0",
         ),
         (["--no-robust", "--late-sigma", "0.04"], "--late-sigma 0.04 needs --late-iterations N"),
         (["--late-iterations", "-1", "--late-sigma", "0.04"], "--late-iterations must be >= 0"),

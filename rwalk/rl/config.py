@@ -49,6 +49,8 @@ MAX_ITERATIONS = 10**9
 #: Most layers, and most units in a layer, of the actor's and the critic's MLPs.
 MAX_LAYERS = 8
 MAX_WIDTH = 4096
+#: Most weight of --distill-smoothness (the imitation's own weight is 1).
+MAX_SMOOTHNESS = 1000.0
 #: --late-iterations' values: the TrainConfig field, and the EnvConfig part and field it
 #: sets in that stage.
 LATE_VALUES = {
@@ -210,6 +212,11 @@ class TrainConfig:
     gradient_length: int = 15
     """--distill: steps whose losses add up before each gradient step (a recurrent student
     learns through them)"""
+    distill_smoothness: float = 0.0
+    """--distill, --student-iterations: beside the imitation's mean square error, this
+    weight times the mean square of the student's action change from one step to the next
+    (rwalk.rl.distillation; a smoother student, for the delayed loop's oscillation,
+    docs/learning.md); 0: rsl-rl's Distillation as it is"""
     symmetry: bool = True
     """augment PPO's minibatches with the left-right mirrored states and actions (rsl-rl's
     symmetry augmentation) where rsl-rl allows it: PPO with an MLP actor (recurrent actors
@@ -372,6 +379,11 @@ class TrainConfig:
             if getattr(self, name) and not self.student_iterations:
                 raise ValueError(f"{show_flag(name, getattr(self, name))} needs "
                                  "--student-iterations: it sets the student's stage")  # fmt: skip
+        require_at_least(self, 0, "distill_smoothness")
+        require_at_most(self, MAX_SMOOTHNESS, "distill_smoothness")
+        if self.distill_smoothness and not (self.distill or self.student_iterations):
+            raise ValueError(f"--distill-smoothness {self.distill_smoothness} needs --distill or "
+                             "--student-iterations: it shapes a distilled student")  # fmt: skip
         if self.finetune_num_envs and not self.finetune_iterations:
             raise ValueError(f"--finetune-num-envs {self.finetune_num_envs} needs "
                              "--finetune-iterations: it sizes the fine-tune")  # fmt: skip
@@ -436,7 +448,8 @@ class TrainConfig:
             return common | {
                 "obs_groups": {"student": ["policy"], "teacher": ["teacher"]},
                 "algorithm": {
-                    "class_name": "Distillation",
+                    "class_name": "rwalk.rl.distillation:SmoothDistillation",
+                    "smoothness": self.distill_smoothness,
                     "num_learning_epochs": self.num_learning_epochs,
                     "gradient_length": self.gradient_length,
                     "learning_rate": self.learning_rate,
@@ -795,8 +808,8 @@ def finetune_training(student: Training, checkpoint: Path, teacher: Path,
     pieces, at --finetune-learning-rate, without symmetry or late stages, on
     --finetune-num-envs envs (its settled-start pool in the student's proportion)."""
     train = dataclasses.replace(
-        student.train, distill="", distill_levels=False, finetune_iterations=0,
-        finetune_num_envs=0,
+        student.train, distill="", distill_levels=False, distill_smoothness=0.0,
+        finetune_iterations=0, finetune_num_envs=0,
         warm_start=str(checkpoint), warm_start_critic=str(teacher), warm_start_levels=True,
         critic=teacher_args.train.critic_kind, critic_obs=teacher_args.train.critic_obs,
         learning_rate=student.train.finetune_learning_rate, symmetry=False,
