@@ -215,8 +215,8 @@ class TrainConfig:
     distill_smoothness: float = 0.0
     """--distill, --student-iterations: beside the imitation's mean square error, this
     weight times the mean square of the student's action change from one step to the next
-    (rwalk.rl.distillation; a smoother student, for the delayed loop's oscillation,
-    docs/learning.md); 0: rsl-rl's Distillation as it is"""
+    (rwalk.rl.distillation: smoother actions, measured against the delayed loop's
+    oscillation in docs/learning.md); 0: rsl-rl's Distillation as it is"""
     symmetry: bool = True
     """augment PPO's minibatches with the left-right mirrored states and actions (rsl-rl's
     symmetry augmentation) where rsl-rl allows it: PPO with an MLP actor (recurrent actors

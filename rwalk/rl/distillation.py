@@ -1,15 +1,15 @@
 """``SmoothDistillation``: rsl-rl's ``Distillation`` with a cost on the student's action
-change from one step to the next (``--distill-smoothness``).
+change from one step to the next (``--distill-smoothness``; CAPS's temporal term, Mysore et
+al., ICRA 2021).
 
-Under a servo delay the default's student oscillates at 10-20 Hz (docs/learning.md, "The
-last action as an observation"): its gain is too high for the delayed loop, and it copies
-its teacher's step-to-step jitter. A training-only action rate on the teacher damps it but
-moves what the teacher learns everywhere; this cost shapes only the student. Beside the
-imitation's mean square error it adds ``smoothness`` times the mean over the rollout's
-consecutive steps of one episode of the mean square of the student's action change (the
-first step of an episode and of each pass over the rollout pair with nothing). The
-gradient flows through both actions of a pair within one of rsl-rl's gradient windows
-(``gradient_length`` steps), and through the later one only across a window's edge.
+Beside the imitation's mean square error, each rollout step's loss adds ``smoothness``
+times the mean over envs of the mean square of the student's action change since the step
+before; a pair across an episode's start counts zero, and the first step of each pass over
+the rollout has no pair. The gradient flows through both actions of a pair within one of
+rsl-rl's gradient windows (``gradient_length`` steps), through the later one across a
+window's edge. Measured on the default's teacher against the 16 ms delay's oscillation
+(docs/learning.md, "A smoother student by a cost on its action change"): the actions
+smoother, the delayed loop not; not in the default.
 
 rsl-rl's ``Distillation.update`` computes its loss step by step, in the rollout's order,
 through ``self.loss_fn(actions, teacher_actions)``; the cost rides on that call, so the
