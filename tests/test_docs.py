@@ -201,7 +201,7 @@ def _commands(text: str, marker: str) -> list[list[str]]:
 
 def test_the_adaptive_default_command_is_the_same_in_the_readme_and_the_docs():
     """README's adaptive default and docs/adaptive.md's "Training: one command" train the
-    same run: the teacher, then the GRU student on its teacher's levels."""
+    same run: the teacher, then the GRU student on its teacher's levels, then its fine-tune."""
     from rwalk.runners import train
 
     section = (ROOT / "docs" / "adaptive.md").read_text().split("## Training: one command")[1]
@@ -213,9 +213,10 @@ def test_the_adaptive_default_command_is_the_same_in_the_readme_and_the_docs():
     assert args.train.teacher and args.train.student_iterations == 190
     assert args.train.student_actor == "gru" and args.train.distill_levels
     assert args.env.gait_action == "schedule" and args.env.bounds.step_length.low == 0.04
-    # the step pinned to the schedule, 13 mm at v* rising 40 mm per m/s, at a 0.60 duty factor
+    # the step pinned to the schedule, 13 mm at v* rising 40 mm per m/s, at a 0.55 duty factor
     assert args.env.schedule_step_rise == 0.04 and args.env.schedule_window[0] == 0.0
-    assert args.env.gait.step_height == 0.013 and args.env.gait.duty_factor == 0.6
+    assert args.env.gait.step_height == 0.013 and args.env.gait.duty_factor == 0.55
+    assert args.train.finetune_iterations == 150
     # the flags it lists for the recipe, typed with --recipe plain, train the same
     listed = section.split("these flags with `--recipe plain`")[1].split("```")[1]
     typed = train.parse_args([*listed.replace("\\", " ").split(), "--log-dir", "logs/adaptive"])

@@ -202,10 +202,11 @@ ADAPTIVE_RECIPE_FLAGS = [
     "--env.bounds.body-height.high", "0.0701", "--env.bounds.step-length.low", "0.04",
     "--env.bounds.cycle-time.low", "0.45", "--env.costs.power", "2",
     "--env.shaping.tracking", "300", "--env.shaping.sigma", "0.02", "--gait-action",
-    "schedule", "--env.gait.step-height", "0.013", "--env.gait.duty-factor", "0.6",
+    "schedule", "--env.gait.step-height", "0.013", "--env.gait.duty-factor", "0.55",
     "--env.schedule-step-rise", "0.04", "--env.schedule-window", "0", "0.25", "0.25", "1",
     "--teacher", "--student-iterations", "190", "--student-actor", "gru",
-    "--distill-levels", "--student-num-envs", "3",  # half of SMALL's 6
+    "--distill-levels", "--finetune-iterations", "150",
+    "--student-num-envs", "3",  # half of SMALL's 6
 ]  # fmt: skip
 
 
@@ -221,6 +222,9 @@ def test_the_adaptive_task_trains_its_default_from_its_recipe():
     narrower = train.parse_args([*SMALL, "--task", "adaptive_gait", "--command-range",
                                  "0.05", "0.25", "--no-teacher"])  # fmt: skip
     assert narrower.env.command_range == (0.05, 0.25) and not narrower.train.teacher
+    assert default.train.finetune_iterations == 150 and narrower.train.finetune_iterations == 0
+    alone = train.parse_args([*SMALL, "--task", "adaptive_gait", "--student-iterations", "0"])
+    assert alone.train.teacher and alone.train.finetune_iterations == 0  # no student to tune
     assert narrower.env.gait_action == "schedule" and narrower.run.max_iterations == 500
 
 

@@ -56,10 +56,12 @@ class Recipe:
     #: line trains neither (--no-teacher, --distill), so that those flags work alone.
     TEACHER_FIELDS = ("teacher", "teacher_obs", "student_iterations", "student_actor",
                       "distill_levels", "student_num_envs",
-                      "student_nominal_physics_iterations")  # fmt: skip
-    #: ``train``'s fields of the student alone: left out too where the command line trains
-    #: no student (--student-iterations 0), so that a teacher trains alone.
-    STUDENT_FIELDS = ("distill_levels", "student_num_envs", "student_nominal_physics_iterations")
+                      "student_nominal_physics_iterations", "finetune_iterations")  # fmt: skip
+    #: ``train``'s fields of the student alone (its fine-tune included): left out too where
+    #: the command line trains no student (--student-iterations 0), so that a teacher
+    #: trains alone.
+    STUDENT_FIELDS = ("distill_levels", "student_num_envs", "student_nominal_physics_iterations",
+                      "finetune_iterations")  # fmt: skip
 
     def env(self, env: EnvConfig) -> EnvConfig:
         """``env`` (a robust training's) as this recipe trains it."""
