@@ -208,6 +208,15 @@ class EnvConfig:
             if self.command_interval is not None:
                 raise bad("command_interval", "must be None with a command_curriculum (it "
                           "judges each episode's one command)")  # fmt: skip
+        if self.shaping is not None and self.shaping.kind_tracking:
+            kinds = self.terrain_levels.kinds if self.terrain_levels is not None else ()
+            missing = [kind for kind in self.shaping.tracking_kinds if kind not in kinds]
+            if missing or not self.shaping.tracking_kinds:
+                raise ValueError(
+                    f"Shaping.kind_tracking {self.shaping.kind_tracking!r} weighs the envs on "
+                    f"tracking_kinds {self.shaping.tracking_kinds!r}, which need tiles in the "
+                    f"terrain-levels map (its kinds: {kinds or 'none, no map'})"
+                )
         if self.costs is not None:  # the default legs; a Core checks its model's again
             self.costs.check_reach(LegGeometry(), self.top_speed)
 

@@ -290,6 +290,7 @@ class Core:
             y=obs[:, OBS_POS.start + 1],
             y0=self.episodes.y0,
             weights=self.config.reward_weights,
+            terrain_kind=self.curriculum.terrain_kind,
             sources=self.observations.sources,
         )
         terms = evaluate(self.terms, state)

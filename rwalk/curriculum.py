@@ -45,12 +45,16 @@ class Curriculum:
         self.terrain_map = terrain_map
         self._start = np.asarray(start_position, dtype=np.float64)
         kinds = len(levels.kinds) if levels is not None else 1
-        self.terrain_level = torch.full(
-            (num_envs,), levels.start_level if levels is not None else 0, dtype=torch.long
-        )
-        """Each env's terrain level (0 without a map). Shape: (N,)."""
         self.terrain_kind = torch.arange(num_envs, dtype=torch.long) % kinds
         """Each env's kind of tile, an index into ``levels.kinds``. Shape: (N,)."""
+        self.floor = torch.zeros(num_envs, dtype=torch.long)
+        """Each env's lowest level (``levels.floor_level`` on its floor kinds, else 0).
+        Shape: (N,)."""
+        if levels is not None and levels.floor_kinds:
+            self.floor[self.of_kinds(levels.floor_kinds)] = levels.floor_level
+        start = levels.start_level if levels is not None else 0
+        self.terrain_level = torch.clamp(torch.full((num_envs,), start), min=self.floor)
+        """Each env's terrain level (0 without a map). Shape: (N,)."""
         self.draws = torch.zeros(num_envs, dtype=torch.long)
         """Levels drawn so far by each env (recycled past the top). Shape: (N,)."""
         self.reviewing = torch.zeros(num_envs, dtype=torch.bool)
@@ -79,7 +83,7 @@ class Curriculum:
         Raises:
             ValueError: naming the kind, if the map has none of it (or there is no map).
         """
-        rows = self._on(kinds)
+        rows = self.of_kinds(kinds, "flatten")
         self.flat |= rows
         self.terrain_level[rows] = 0
         self.reviewing[rows] = False
@@ -91,20 +95,31 @@ class Curriculum:
         top does: its next draw of the key (seed + i, "terrain_level", k)), so that they
         do not climb the flat levels one episode at a time. Returns their mask. Shape:
         (N,) bool."""
-        mask = self._on(kinds)
+        mask = self.of_kinds(kinds, "flatten")
         rows = torch.nonzero(mask).flatten()
         u = rng.uniform_rows(self._seed, rows, LEVEL_STREAM, self.draws, 1)[:, 0]
-        self.terrain_level[rows] = torch.floor(u * self.levels.levels).to(torch.long)
+        self.terrain_level[rows] = self._above_floor(rows, u)
         self.flat &= ~mask
         return mask
 
-    def _on(self, kinds: tuple[str, ...]) -> Tensor:
+    def of_kinds(self, kinds: tuple[str, ...], use: str = "select") -> Tensor:
+        """Mask of the envs on ``kinds`` of tile. Shape: (N,) bool.
+
+        Raises:
+            ValueError: naming the kind and ``use``, if the map has none of it.
+        """
         known = self.levels.kinds if self.levels is not None else ()
         for kind in kinds:
             if kind not in known:
-                raise ValueError(f"no {kind!r} tiles to flatten: the map's kinds are "
+                raise ValueError(f"no {kind!r} tiles to {use}: the map's kinds are "
                                  f"{known or 'none (no terrain-levels map)'}")  # fmt: skip
         return torch.isin(self.terrain_kind, torch.tensor([known.index(k) for k in kinds]))
+
+    def _above_floor(self, rows: Tensor, u: Tensor) -> Tensor:
+        """Levels drawn uniformly from each env's floor to the map's top by uniforms ``u``
+        (from 0 to the top where the floor is 0). Shape: (M,), (M,) -> (M,) int64."""
+        floor = self.floor[rows]
+        return floor + torch.floor(u * (self.levels.levels - floor)).to(torch.long)
 
     def move(
         self,
@@ -131,7 +146,9 @@ class Curriculum:
         if levels.review > 0:  # env i's k-th draw from the key (seed + i, REVIEW_STREAM, k)
             u = rng.uniform_rows(self._seed, rows, REVIEW_STREAM, self.reviews, 2)
             self.reviewing[rows] = (u[:, 0] < levels.review) & ~self.flat[rows]
-            self.review_level[rows] = torch.floor(u[:, 1] * (self.terrain_level[rows] + 1)).long()
+            floor = self.floor[rows]
+            span = self.terrain_level[rows] + 1 - floor
+            self.review_level[rows] = floor + torch.floor(u[:, 1] * span).long()
 
     def _move(self, rows: Tensor, walked: Tensor, distance: Tensor, fell: Tensor,
               target: Tensor | float, control_dt: float) -> None:  # fmt: skip
@@ -147,10 +164,10 @@ class Curriculum:
         redraw = None
         if levels.recycle:  # env i's k-th draw from the key (seed + i, LEVEL_STREAM, k)
             u = rng.uniform_rows(self._seed, rows, LEVEL_STREAM, self.draws, 1)[:, 0]
-            redraw = torch.floor(u * levels.levels).to(torch.long)
-        self.terrain_level[rows] = update_levels(
-            self.terrain_level[rows], distance[rows], expected, fell[rows], levels, redraw
-        )
+            redraw = self._above_floor(rows, u)
+        self.terrain_level[rows] = update_levels(self.terrain_level[rows], distance[rows],
+                                                 expected, fell[rows], levels, redraw,
+                                                 self.floor[rows])  # fmt: skip
 
     def origins(self, ids: np.ndarray | None) -> np.ndarray:
         """Nominal start (x, y) of envs ``ids``: their tiles' pads on a map, else the
@@ -218,6 +235,7 @@ class Curriculum:
             saved = saved[kind + kinds * ((env // kinds) % per_kind)]
             note = (f"terrain levels of {theirs} envs, this run has {mine}: each env starts "
                     f"on the level of a saved env on its kind of tile")  # fmt: skip
-        self.terrain_level.copy_(saved.clamp(0, self.levels.levels - 1))
+        top = self.levels.levels - 1
+        self.terrain_level.copy_(torch.clamp(saved.clamp(max=top), min=self.floor))
         self.reviewing.zero_()
         return note

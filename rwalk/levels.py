@@ -103,6 +103,13 @@ class TerrainLevels:
     """Share of episodes that start on a level drawn uniformly from 0 to the env's own, so that
     ground already passed stays in every batch; such an episode does not move the env's
     level. 0: every episode on the env's own level (legged_gym's rule)."""
+    floor_kinds: tuple[str, ...] = ()
+    """Kinds of tile whose envs never walk below ``floor_level``: they start there at the
+    latest, a demotion stops there, and their redrawn and review levels are drawn from
+    ``floor_level`` up (the stones' gaps begin at level 3 of the default map: envs kept on
+    them practise the gaps instead of bouncing back to flat stones)."""
+    floor_level: int = 0
+    """The lowest level of the envs on ``floor_kinds``."""
 
     def __post_init__(self) -> None:
         def is_int(value: object) -> bool:
@@ -142,9 +149,25 @@ class TerrainLevels:
             )
         if not is_int(self.start_level) or not 0 <= self.start_level < self.levels:
             raise ValueError(
-                f"start_level {self.start_level!r} is a terrain level outside the map "
-                f"(levels 0..{self.levels - 1})"
+                f"TerrainLevels.start_level {self.start_level!r} is a terrain level outside "
+                f"the map (levels 0..{self.levels - 1})"
             )
+        floor_kinds = self.floor_kinds if isinstance(self.floor_kinds, tuple) else None
+        if (
+            floor_kinds is None
+            or not set(floor_kinds) <= set(self.kinds)
+            or (len(set(floor_kinds)) != len(floor_kinds))
+        ):
+            raise ValueError(f"TerrainLevels.floor_kinds must be kinds of this map's tiles "
+                             f"{self.kinds}, each once, got {self.floor_kinds!r}")  # fmt: skip
+        if not is_int(self.floor_level) or not 0 <= self.floor_level < self.levels:
+            raise ValueError(
+                f"TerrainLevels.floor_level {self.floor_level!r} is a terrain level outside "
+                f"the map (levels 0..{self.levels - 1})"
+            )
+        if self.floor_level and not self.floor_kinds:
+            raise ValueError(f"TerrainLevels.floor_level {self.floor_level!r} needs "
+                             f"floor_kinds (the kinds of tile it holds), got none")  # fmt: skip
         for name in ("curriculum", "recycle", "gap_ramp"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
@@ -381,20 +404,23 @@ def update_levels(
     fell: torch.Tensor,
     cfg: TerrainLevels,
     redraw: torch.Tensor | None = None,
+    floor: torch.Tensor | int = 0,
 ) -> torch.Tensor:
     """Levels after an episode: one up for a walk of at least ``promote * expected`` without
-    falling, one down for a fall or a walk shorter than ``demote * expected``, clamped to the map;
-    with ``cfg.recycle``, an env promoted beyond the top takes its ``redraw`` level instead;
-    unchanged when ``cfg.curriculum`` is False.
+    falling, one down for a fall or a walk shorter than ``demote * expected``, clamped to the
+    map and to each env's ``floor`` (``TerrainLevels.floor_level`` on its floor kinds, else
+    0); with ``cfg.recycle``, an env promoted beyond the top takes its ``redraw`` level
+    instead; unchanged when ``cfg.curriculum`` is False.
 
-    Shape: (N,) int64, (N,) m, (N,) m, (N,) bool, optional (N,) int64 -> (N,) int64.
+    Shape: (N,) int64, (N,) m, (N,) m, (N,) bool, optional (N,) int64, (N,) int64 or an int
+    -> (N,) int64.
     """
     if not cfg.curriculum:
         return levels.clone()
     up = ~fell & (distance >= cfg.promote * expected)
     down = fell | (distance < cfg.demote * expected)
     step = up.long() - down.long()  # never both: demote <= promote
-    moved = torch.clamp(levels + step, 0, cfg.levels - 1)
+    moved = torch.clamp(torch.clamp(levels + step, max=cfg.levels - 1), min=floor)
     if cfg.recycle and redraw is not None:
         moved = torch.where(up & (levels == cfg.levels - 1), redraw, moved)
     return moved

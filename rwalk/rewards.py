@@ -34,8 +34,10 @@ MAX_WEIGHT = 1e6
 
 def _require_finite_numbers(config: object) -> None:
     """Raise ValueError naming ``Class.field`` for a field that is not a finite number
-    within ±MAX_WEIGHT."""
+    within ±MAX_WEIGHT (fields declared as tuples are checked by their class)."""
     for f in fields(config):
+        if str(f.type).startswith("tuple"):
+            continue
         value = getattr(config, f.name)
         if (
             not isinstance(value, (int, float))
@@ -166,9 +168,21 @@ class Shaping:
     values (legged_gym's ``action_rate``; an episode's first step counts from the zero
     action, the base gait). A size >= 0; 0: the term at weight 0 (exact zeros), so that a
     late stage can raise it (--late-action-rate)."""
+    kind_tracking: float = 0.0
+    """Weight added to the spec's velocity tracking term 1 - |v_x - v*| on the envs of
+    ``tracking_kinds`` of tile (a terrain-levels map's), under the name ``kind_tracking``:
+    -270 makes that term's weight 30 there instead of the spec's 300, so that a robot
+    standing in the stepping stones' gaps earns a tenth of what it does elsewhere."""
+    tracking_kinds: tuple[str, ...] = ("stones",)
+    """The kinds of tile of ``kind_tracking``."""
 
     def __post_init__(self) -> None:
         _require_finite_numbers(self)
+        if not isinstance(self.tracking_kinds, tuple) or not all(
+            isinstance(kind, str) for kind in self.tracking_kinds
+        ):
+            raise ValueError(f"Shaping.tracking_kinds must be a tuple of kinds of tile, "
+                             f"got {self.tracking_kinds!r}")  # fmt: skip
         if not self.sigma > 0:
             raise ValueError(f"Shaping.sigma must be > 0 m/s, got {self.sigma!r}")
         if self.sigma_per_speed < 0:
@@ -224,11 +238,22 @@ def action_rate(action: Tensor, last_action: Tensor) -> Tensor:
     return total
 
 
-def shaping_terms(shaping: Shaping) -> tuple[RewardTerm, ...]:
-    """The terms of ``shaping``: ``tracking_kernel``, ``alive`` and ``action_rate`` (minus
-    its size times ``action_rate`` of the task's last two actions), each at its weight, 0
+def shaping_terms(shaping: Shaping, map_kinds: tuple[str, ...] = ()) -> tuple[RewardTerm, ...]:
+    """The terms of ``shaping``: ``tracking_kernel``, ``alive``, ``action_rate`` (minus
+    its size times ``action_rate`` of the task's last two actions) and ``kind_tracking``
+    (the spec's tracking term on the envs whose kind of tile, an index into ``map_kinds``,
+    is one of ``shaping.tracking_kinds``; 0 without a map), each at its weight, 0
     included: the same terms whatever the values, so that ``Core.set_reward`` can move any
     of them."""
+    chosen = torch.tensor([i for i, kind in enumerate(map_kinds) if kind in shaping.tracking_kinds],
+                          dtype=torch.long)  # fmt: skip
+
+    def kind_tracking(s: StepState) -> Tensor:
+        if s.terrain_kind is None:
+            return velocity_tracking(s.forward_velocity, s.v_target) * 0.0
+        on = torch.isin(s.terrain_kind, chosen).to(torch.float64)
+        return velocity_tracking(s.forward_velocity, s.v_target) * on
+
     return (
         RewardTerm("tracking_kernel", shaping.tracking,
                    lambda s: tracking_kernel(s.forward_velocity, s.v_target,
@@ -236,6 +261,7 @@ def shaping_terms(shaping: Shaping) -> tuple[RewardTerm, ...]:
         RewardTerm("alive", shaping.alive, lambda s: s.forward_velocity * 0.0 + 1.0),
         RewardTerm("action_rate", -shaping.action_rate,
                    lambda s: action_rate(s.sources.task.action, s.sources.task.last_action)),
+        RewardTerm("kind_tracking", shaping.kind_tracking, kind_tracking),
     )  # fmt: skip
 
 
@@ -371,6 +397,9 @@ class StepState(NamedTuple):
     """Torso y at the episode's start. Shape: (N,). Metres."""
     weights: RewardWeights
     """The config's weights (for the contact scores)."""
+    terrain_kind: Tensor | None = None
+    """Each env's kind of tile, an index into its terrain-levels map's kinds (None without
+    a map). Shape: (N,) int64."""
     sources: Any = None
     """Everything else a term may read: the core's parts (``rwalk.observations.Sources``:
     sensors, episodes, drawn physics, terrain, task, simulation), as batched tensors

@@ -252,6 +252,15 @@ def test_update_levels():
     assert torch.equal(update_levels(levels, distance, expected, fell, frozen), levels)
 
 
+def test_update_levels_stops_at_each_env_s_floor():
+    levels = torch.tensor([1, 2, 1, 1])
+    distance = torch.tensor([2.0, 0.1, 2.0, 1.8])  # of 2 m: 1.0, 0.05, 1.0, 0.9
+    fell = torch.tensor([True, False, True, False])
+    floor = torch.tensor([1, 1, 0, 1])
+    after = update_levels(levels, distance, torch.full((4,), 2.0), fell, SMALL, floor=floor)
+    assert after.tolist() == [1, 1, 0, 2]  # fell: held at 1; short: 2 to 1; fell to 0; up
+
+
 def test_check_level():
     SMALL.check_level(2)
     for level in (-1, 3):
@@ -285,6 +294,11 @@ def test_check_level():
         ("promote", 1.5, "promote"),
         ("demote", -0.1, "demote"),
         ("demote", 0.9, r"demote \(0.9\) must not exceed promote"),
+        ("floor_kinds", ("ice",), "floor_kinds must be kinds of this map's tiles"),
+        ("floor_kinds", ("stones", "stones"), "each once"),
+        ("floor_kinds", "stones", "floor_kinds must be kinds"),
+        ("floor_level", 10, "floor_level 10 is a terrain level outside the map"),
+        ("floor_level", 3, "floor_level 3 needs floor_kinds"),
     ],
 )
 def test_bad_config_names_its_field(field, value, message):

@@ -399,6 +399,12 @@ def test_the_late_speed_kernel_is_the_residual_tasks_own_and_written_out(
             0.045,
         ),
         (["--env.terrain-levels.promote", "0.7"], "terrain_levels.promote", 0.7),
+        (
+            ["--env.terrain-levels.floor-kinds", "stones", "--env.terrain-levels.floor-level", "3"],
+            "terrain_levels.floor_level",
+            3,
+        ),
+        (["--env.shaping.kind-tracking", "-270"], "shaping.kind_tracking", -270.0),
         (["--no-robust", "--env.pushes.speed", "0.1", "0.2"], "pushes.speed", (0.1, 0.2)),
         (["--env.pushes.force", "0", "0.8"], "pushes.force", (0.0, 0.8)),
     ],
@@ -412,6 +418,11 @@ def test_a_nested_field_set_on_the_command_line_reaches_the_env(flags, field, va
     assert config == value
     if field == "reward_weights.stability":  # the term the core adds is weighed by it
         assert core.config.reward_weights.stability == -5.0
+    if field == "terrain_levels.floor_level":  # the stones envs start on level 3
+        stones = core.terrain_kind == core.config.terrain_levels.kinds.index("stones")
+        assert core.terrain_level[stones].tolist() == [3] and not core.terrain_level[~stones].any()
+    if field == "shaping.kind_tracking":  # the stones envs' term is weighed by it
+        assert dict((t.name, t.weight) for t in core.terms)["kind_tracking"] == -270.0
     if field == "pushes.force":  # every env's steady force is in the new range
         core.reset()
         assert bool((core.pushes.force.norm(dim=-1) <= 0.8 + 1e-12).all())
@@ -445,6 +456,13 @@ def test_a_flag_that_names_no_field_names_the_near_ones(capsys):
          "--late-tracking 300.0 needs --late-iterations N: this training has no late stage"),
         (["--late-tracking", "nan"], "--late-tracking must be"),
         (["--late-sigma", "-0.01"], "--late-sigma must be"),
+        (["--env.terrain-levels.floor-kinds", "ice"],
+         "--env.terrain-levels.floor-kinds must be kinds of this map's tiles"),
+        (["--env.terrain-levels.floor-kinds", "stones", "--env.terrain-levels.floor-level", "10"],
+         "--env.terrain-levels.floor-level 10 is a terrain level outside the map"),
+        (["--env.shaping.kind-tracking", "inf"], "--env.shaping.kind-tracking must be a finite"),
+        (["--no-robust", "--env.shaping.kind-tracking", "-270"],
+         "--env.shaping.kind-tracking -270.0 weighs the envs on tracking_kinds ('stones',)"),
         (["--env.observation-noise.torso-forward-speed", "nan"],
          "--env.observation-noise.torso-forward-speed must be a scale >= 0, got nan"),
     ],

@@ -8,6 +8,7 @@ import torch
 
 from rwalk import Core, EnvConfig, ResidualWalkEnv
 from rwalk.envs.single_step import SingleStep
+from rwalk.levels import TerrainLevels
 from rwalk.rewards import (
     TERM_NAMES,
     GaitCosts,
@@ -59,7 +60,13 @@ def test_shaping_terms_are_added_and_reported_and_the_spec_env_has_none():
     core = Core(shaped, 2, seed=0)
     core.reset()
     result = core.step(torch.zeros(2, 12))
-    assert tuple(result.terms) == (*TERM_NAMES, "tracking_kernel", "alive", "action_rate")
+    assert tuple(result.terms) == (
+        *TERM_NAMES,
+        "tracking_kernel",
+        "alive",
+        "action_rate",
+        "kind_tracking",
+    )
     v = core.obs[:, 7]
     expected = 100.0 * tracking_kernel(v, core.task.v_target, 0.02)
     torch.testing.assert_close(result.terms["tracking_kernel"], expected)
@@ -70,6 +77,46 @@ def test_shaping_terms_are_added_and_reported_and_the_spec_env_has_none():
     env.reset()
     _, _, _, _, info = env.step(env.action_space.sample() * 0)
     assert tuple(info["reward_components"]) == TERM_NAMES
+
+
+def test_kind_tracking_weighs_the_spec_s_tracking_term_on_its_kinds_only():
+    """-270 on the stones envs: their tracking weight is 30 in the training's reward,
+    the other kinds' the spec's 300; the spec's own term is unchanged."""
+    levels = TerrainLevels(levels=2, tile_length=3.0, pad_length=0.8)
+    config = EnvConfig(terrain_levels=levels, settle_steps=5,
+                       shaping=Shaping(kind_tracking=-270.0))  # fmt: skip
+    core = Core(config, 8, seed=2)
+    core.reset()
+    result = core.step(torch.zeros(8, 12))
+    v, stones = core.obs[:, 7], core.terrain_kind == 3  # rough, slopes, steps, stones
+    tracking = 1.0 - (v - core.task.v_target).abs()
+    expected = torch.where(stones, -270.0 * tracking, torch.zeros(8, dtype=torch.float64))
+    torch.testing.assert_close(result.terms["kind_tracking"], expected, rtol=0, atol=1e-12)
+    torch.testing.assert_close(result.terms["velocity_tracking"], 300.0 * tracking)
+    assert stones.tolist() == [False, False, False, True] * 2
+    walked = Core(dataclasses.replace(config, shaping=Shaping()), 8, seed=2)
+    walked.reset()
+    plain = walked.step(torch.zeros(8, 12))  # weight 0: the same reward to the bit
+    assert torch.equal(plain.terms["kind_tracking"], torch.zeros(8, dtype=torch.float64))
+    others = [term for name, term in plain.terms.items() if name != "kind_tracking"]
+    assert torch.equal(plain.reward, sum(others, torch.zeros(8, dtype=torch.float64)))
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"terrain_levels": None}, r"kind_tracking -270.0 .* none, no map"),
+        ({"shaping": Shaping(kind_tracking=-270.0, tracking_kinds=("ice",))},
+         r"tracking_kinds \('ice',\)"),
+        ({"shaping": Shaping(kind_tracking=-270.0, tracking_kinds=())}, r"tracking_kinds \(\)"),
+    ],
+)  # fmt: skip
+def test_kind_tracking_needs_its_kinds_on_the_map(change, message):
+    base = dict(terrain_levels=TerrainLevels(), shaping=Shaping(kind_tracking=-270.0))
+    with pytest.raises(ValueError, match=message):
+        EnvConfig(**(base | change))
+    with pytest.raises(ValueError, match=r"Shaping.tracking_kinds must be a tuple.*'stones'"):
+        Shaping(tracking_kinds="stones")
 
 
 def test_set_reward_changes_the_terms_values_from_the_next_step():
@@ -110,7 +157,7 @@ def test_set_reward_refuses_a_missing_part_and_a_change_of_terms():
         core.set_reward(costs=GaitCosts())
     assert core.config.shaping == Shaping(tracking=300.0)  # a refusal changes nothing
     assert [t.name for t in core.terms] == [*TERM_NAMES, "tracking_kernel", "alive",
-                                            "action_rate"]  # fmt: skip
+                                            "action_rate", "kind_tracking"]  # fmt: skip
     costed = Core(dataclasses.replace(FLAT, costs=GaitCosts()), 1, seed=0)
     names = [t.name for t in costed.terms]
     with pytest.raises(ValueError, match=r"not which terms.*'stumble'"):

@@ -349,6 +349,47 @@ def test_flattened_kinds_walk_level_0_and_stay_there():
     assert torch.equal(again.terrain_level, many.terrain_level)  # the same keys, the same draws
 
 
+def test_envs_on_floor_kinds_never_walk_below_their_floor():
+    """Stones envs with floor_level 2 start there, a demotion stops there, and their
+    review, redrawn and released levels are drawn from 2 up; the other kinds as before."""
+    levels = TerrainLevels(**{**vars(SMALL), "review": 0.5, "floor_kinds": ("stones",),
+                              "floor_level": 2})  # fmt: skip
+    c = Core(config(terrain_levels=levels), 64, seed=6)
+    c.reset()
+    cur, stones = c.curriculum, c.terrain_kind == 3  # kind 3 of rough, slopes, steps, stones
+    assert c.terrain_level.tolist() == [0, 0, 0, 2] * 16
+    assert cur.floor.tolist() == [0, 0, 0, 2] * 16
+    assert set(cur.review_level[cur.reviewing & stones].tolist()) == {2}  # from 2 to 2
+    origins = c.terrain_map.origins(np.full(16, 2), np.full(16, 3))
+    xy = c.obs[stones & ~cur.reviewing, OBS_POS.start : OBS_POS.start + 2].numpy()
+    assert np.all(np.abs(xy[:, 1] - origins[: len(xy), 1]) < 0.15)  # on level 2's pad
+    c.walked_steps[:] = 100
+    c.episode_distance[:] = 0.0  # far too short: a demotion
+    c.reset()
+    assert c.terrain_level.tolist() == [0, 0, 0, 2] * 16
+    top = TerrainLevels(**{**vars(levels), "start_level": 3, "review": 0.0})
+    t = Core(config(terrain_levels=top), 64, seed=6)
+    t.reset()
+    t.walked_steps[:] = 100
+    t.episode_distance[:] = t.config.expected_velocity * 100 * t.control_dt
+    t.reset()  # past the top: redrawn
+    drawn = t.terrain_level.clone()
+    assert set(drawn[stones].tolist()) == {2, 3}
+    assert set(t.terrain_level[~stones].tolist()) == {0, 1, 2, 3}
+    t.curriculum.flatten(("stones",))
+    t.curriculum.release(("stones",))
+    assert set(t.terrain_level[stones].tolist()) == {2, 3}
+    t.curriculum.load_checkpoint({"terrain_level": torch.zeros(64, dtype=torch.long)})
+    assert t.terrain_level.tolist() == [0, 0, 0, 2] * 16  # a saved level under the floor
+    unfloored = TerrainLevels(**{**vars(top), "floor_kinds": (), "floor_level": 0})
+    plain = Core(config(terrain_levels=unfloored), 64, seed=6)
+    plain.reset()
+    plain.walked_steps[:] = 100
+    plain.episode_distance[:] = t.config.expected_velocity * 100 * t.control_dt
+    plain.reset()  # the same keys: floor 0 draws what the map's draws were before floors
+    assert torch.equal(plain.terrain_level[~stones], drawn[~stones])
+
+
 def test_checkpoints_carry_the_curriculum(tmp_path):
     import contextlib
     import dataclasses

@@ -151,6 +151,7 @@ class SingleStep:
             y=values[1],
             y0=y0,
             weights=cfg.reward_weights,
+            terrain_kind=core.curriculum.terrain_kind,
             sources=core.observations.sources,
         )
         # A term reading the core's parts (state.sources) gives a tensor of one env.

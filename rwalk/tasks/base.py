@@ -212,7 +212,8 @@ class Task:
         the gait costs and the training's shaping when the config has them."""
         cfg = self.config
         costs = () if cfg.costs is None else cost_terms(cfg.costs, self.world)
-        shaping = () if cfg.shaping is None else shaping_terms(cfg.shaping)
+        map_kinds = cfg.terrain_levels.kinds if cfg.terrain_levels is not None else ()
+        shaping = () if cfg.shaping is None else shaping_terms(cfg.shaping, map_kinds)
         return spec_terms(cfg.reward_weights) + costs + shaping
 
     @classmethod
