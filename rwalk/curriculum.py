@@ -98,7 +98,7 @@ class Curriculum:
         mask = self.of_kinds(kinds, "flatten")
         rows = torch.nonzero(mask).flatten()
         u = rng.uniform_rows(self._seed, rows, LEVEL_STREAM, self.draws, 1)[:, 0]
-        self.terrain_level[rows] = self._above_floor(rows, u)
+        self.terrain_level[rows] = self._above_floor(rows, u, self.levels.levels - 1)
         self.flat &= ~mask
         return mask
 
@@ -115,11 +115,11 @@ class Curriculum:
                                  f"{known or 'none (no terrain-levels map)'}")  # fmt: skip
         return torch.isin(self.terrain_kind, torch.tensor([known.index(k) for k in kinds]))
 
-    def _above_floor(self, rows: Tensor, u: Tensor) -> Tensor:
-        """Levels drawn uniformly from each env's floor to the map's top by uniforms ``u``
-        (from 0 to the top where the floor is 0). Shape: (M,), (M,) -> (M,) int64."""
+    def _above_floor(self, rows: Tensor, u: Tensor, top: Tensor | int) -> Tensor:
+        """Levels drawn uniformly from each env's floor to ``top`` (the map's, or each env's
+        own) by uniforms ``u``. Shape: (M,), (M,), (M,) or an int -> (M,) int64."""
         floor = self.floor[rows]
-        return floor + torch.floor(u * (self.levels.levels - floor)).to(torch.long)
+        return floor + torch.floor(u * (top + 1 - floor)).to(torch.long)
 
     def move(
         self,
@@ -146,9 +146,7 @@ class Curriculum:
         if levels.review > 0:  # env i's k-th draw from the key (seed + i, REVIEW_STREAM, k)
             u = rng.uniform_rows(self._seed, rows, REVIEW_STREAM, self.reviews, 2)
             self.reviewing[rows] = (u[:, 0] < levels.review) & ~self.flat[rows]
-            floor = self.floor[rows]
-            span = self.terrain_level[rows] + 1 - floor
-            self.review_level[rows] = floor + torch.floor(u[:, 1] * span).long()
+            self.review_level[rows] = self._above_floor(rows, u[:, 1], self.terrain_level[rows])
 
     def _move(self, rows: Tensor, walked: Tensor, distance: Tensor, fell: Tensor,
               target: Tensor | float, control_dt: float) -> None:  # fmt: skip
@@ -164,7 +162,7 @@ class Curriculum:
         redraw = None
         if levels.recycle:  # env i's k-th draw from the key (seed + i, LEVEL_STREAM, k)
             u = rng.uniform_rows(self._seed, rows, LEVEL_STREAM, self.draws, 1)[:, 0]
-            redraw = self._above_floor(rows, u)
+            redraw = self._above_floor(rows, u, levels.levels - 1)
         self.terrain_level[rows] = update_levels(self.terrain_level[rows], distance[rows],
                                                  expected, fell[rows], levels, redraw,
                                                  self.floor[rows])  # fmt: skip

@@ -249,8 +249,8 @@ def shaping_terms(shaping: Shaping, map_kinds: tuple[str, ...] = ()) -> tuple[Re
                           dtype=torch.long)  # fmt: skip
 
     def kind_tracking(s: StepState) -> Tensor:
-        if s.terrain_kind is None:
-            return velocity_tracking(s.forward_velocity, s.v_target) * 0.0
+        if not shaping.kind_tracking or s.terrain_kind is None:  # weight 0: nothing per step
+            return s.forward_velocity * 0.0
         on = torch.isin(s.terrain_kind, chosen).to(torch.float64)
         return velocity_tracking(s.forward_velocity, s.v_target) * on
 
