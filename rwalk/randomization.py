@@ -331,6 +331,14 @@ class PhysicsRandomizer:
             flat[ids[:, None], index[None, :]] = value
         self._batch.set_const(ids.astype(np.int32))
 
+    def lag(self) -> Tensor:
+        """Each env's servo delay now, in substeps: its drawn ``latency``, or 0 wherever
+        ``delay`` applies none (no randomisation, or a latency range of (0, 0), whose
+        running episodes keep their older draws). Shape: (N,) int64."""
+        if self.randomization is None or self.randomization.latency == (0, 0):
+            return torch.zeros_like(self.latency)
+        return self.latency
+
     def delay(self, ctrl: np.ndarray) -> np.ndarray:
         """The servo targets each env applies, ``latency`` substeps late: the end of
         the last period's targets, then the start of this one's. (N, K, 12) -> same."""

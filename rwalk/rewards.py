@@ -168,6 +168,11 @@ class Shaping:
     values (legged_gym's ``action_rate``; an episode's first step counts from the zero
     action, the base gait). A size >= 0; 0: the term at weight 0 (exact zeros), so that a
     late stage can raise it (--late-action-rate)."""
+    latency_action_rate: float = 0.0
+    """Cost per unit of the action's squared change (``action_rate``'s quantity) per
+    substep of each env's drawn servo latency, under the name ``latency_action_rate``: 70
+    costs 70 x that change where the servos lag one substep, 210 at three, nothing without
+    a lag. A size >= 0; 0: the term at weight 0 (exact zeros)."""
     kind_tracking: float = 0.0
     """Weight added to the spec's velocity tracking term 1 - |v_x - v*| on the envs of
     ``tracking_kinds`` of tile (a terrain-levels map's), under the name ``kind_tracking``:
@@ -188,9 +193,10 @@ class Shaping:
         if self.sigma_per_speed < 0:
             raise ValueError(f"Shaping.sigma_per_speed is a share of v* and must be >= 0, "
                              f"got {self.sigma_per_speed!r}")  # fmt: skip
-        if self.action_rate < 0:
-            raise ValueError(f"Shaping.action_rate is the size of a cost and must be >= 0, "
-                             f"got {self.action_rate!r}")  # fmt: skip
+        for name in ("action_rate", "latency_action_rate"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"Shaping.{name} is the size of a cost and must be >= 0, "
+                                 f"got {getattr(self, name)!r}")  # fmt: skip
 
 
 def tracking_kernel(
@@ -240,7 +246,9 @@ def action_rate(action: Tensor, last_action: Tensor) -> Tensor:
 
 def shaping_terms(shaping: Shaping, map_kinds: tuple[str, ...] = ()) -> tuple[RewardTerm, ...]:
     """The terms of ``shaping``: ``tracking_kernel``, ``alive``, ``action_rate`` (minus
-    its size times ``action_rate`` of the task's last two actions) and ``kind_tracking``
+    its size times ``action_rate`` of the task's last two actions),
+    ``latency_action_rate`` (the same change times each env's servo delay in substeps,
+    ``PhysicsRandomizer.lag``) and ``kind_tracking``
     (the spec's tracking term on the envs whose kind of tile, an index into ``map_kinds``,
     is one of ``shaping.tracking_kinds``; 0 without a map), each at its weight, 0
     included: the same terms whatever the values, so that ``Core.set_reward`` can move any
@@ -254,6 +262,12 @@ def shaping_terms(shaping: Shaping, map_kinds: tuple[str, ...] = ()) -> tuple[Re
         on = torch.isin(s.terrain_kind, chosen).to(torch.float64)
         return velocity_tracking(s.forward_velocity, s.v_target) * on
 
+    def latency_action_rate(s: StepState) -> Tensor:
+        if not shaping.latency_action_rate:  # weight 0: nothing per step
+            return s.forward_velocity * 0.0
+        task = s.sources.task
+        return action_rate(task.action, task.last_action) * s.sources.physics.lag()
+
     return (
         RewardTerm("tracking_kernel", shaping.tracking,
                    lambda s: tracking_kernel(s.forward_velocity, s.v_target,
@@ -261,6 +275,7 @@ def shaping_terms(shaping: Shaping, map_kinds: tuple[str, ...] = ()) -> tuple[Re
         RewardTerm("alive", shaping.alive, lambda s: s.forward_velocity * 0.0 + 1.0),
         RewardTerm("action_rate", -shaping.action_rate,
                    lambda s: action_rate(s.sources.task.action, s.sources.task.last_action)),
+        RewardTerm("latency_action_rate", -shaping.latency_action_rate, latency_action_rate),
         RewardTerm("kind_tracking", shaping.kind_tracking, kind_tracking),
     )  # fmt: skip
 

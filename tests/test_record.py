@@ -405,6 +405,7 @@ def test_the_late_speed_kernel_is_the_residual_tasks_own_and_written_out(
             3,
         ),
         (["--env.shaping.kind-tracking", "-270"], "shaping.kind_tracking", -270.0),
+        (["--env.shaping.latency-action-rate", "70"], "shaping.latency_action_rate", 70.0),
         (["--no-robust", "--env.pushes.speed", "0.1", "0.2"], "pushes.speed", (0.1, 0.2)),
         (["--env.pushes.force", "0", "0.8"], "pushes.force", (0.0, 0.8)),
     ],
@@ -423,6 +424,8 @@ def test_a_nested_field_set_on_the_command_line_reaches_the_env(flags, field, va
         assert core.terrain_level[stones].tolist() == [3] and not core.terrain_level[~stones].any()
     if field == "shaping.kind_tracking":  # the stones envs' term is weighed by it
         assert dict((t.name, t.weight) for t in core.terms)["kind_tracking"] == -270.0
+    if field == "shaping.latency_action_rate":  # the delayed envs' change is priced by it
+        assert dict((t.name, t.weight) for t in core.terms)["latency_action_rate"] == -70.0
     if field == "pushes.force":  # every env's steady force is in the new range
         core.reset()
         assert bool((core.pushes.force.norm(dim=-1) <= 0.8 + 1e-12).all())

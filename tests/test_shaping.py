@@ -9,6 +9,7 @@ import torch
 from rwalk import Core, EnvConfig, ResidualWalkEnv
 from rwalk.envs.single_step import SingleStep
 from rwalk.levels import TerrainLevels
+from rwalk.randomization import Randomization
 from rwalk.rewards import (
     TERM_NAMES,
     GaitCosts,
@@ -65,6 +66,7 @@ def test_shaping_terms_are_added_and_reported_and_the_spec_env_has_none():
         "tracking_kernel",
         "alive",
         "action_rate",
+        "latency_action_rate",
         "kind_tracking",
     )
     v = core.obs[:, 7]
@@ -157,7 +159,8 @@ def test_set_reward_refuses_a_missing_part_and_a_change_of_terms():
         core.set_reward(costs=GaitCosts())
     assert core.config.shaping == Shaping(tracking=300.0)  # a refusal changes nothing
     assert [t.name for t in core.terms] == [*TERM_NAMES, "tracking_kernel", "alive",
-                                            "action_rate", "kind_tracking"]  # fmt: skip
+                                            "action_rate", "latency_action_rate",
+                                            "kind_tracking"]  # fmt: skip
     costed = Core(dataclasses.replace(FLAT, costs=GaitCosts()), 1, seed=0)
     names = [t.name for t in costed.terms]
     with pytest.raises(ValueError, match=r"not which terms.*'stumble'"):
@@ -216,6 +219,36 @@ def test_the_action_rate_costs_each_change_from_the_episodes_zero_start():
     assert torch.equal(single.task.last_action[0], first[0].double())
 
 
+def test_the_latency_action_rate_costs_the_change_per_substep_of_each_env_s_delay():
+    """70 per substep: the same change costs 0, 70, 140 and 210 where the servos lag 0-3
+    substeps; a latency range of (0, 0) ends every cost at once, as it ends every delay."""
+    randomization = Randomization(latency=(0, 3))
+    config = dataclasses.replace(FLAT, randomization=randomization,
+                                 shaping=Shaping(latency_action_rate=70.0))  # fmt: skip
+    core = Core(config, 16, seed=1)
+    core.reset()
+    lag = core.physics.latency.clone()
+    assert sorted(set(lag.tolist())) == [0, 1, 2, 3]  # every delay drawn
+    action = torch.zeros(16, 12)
+    action[:, 0], action[:, 3] = 0.5, -0.25  # from the zero action: 0.25 + 0.0625
+    got = core.step(action).terms["latency_action_rate"]
+    assert torch.equal(got, -70.0 * (0.3125 * lag.double()))  # the same operations
+    assert got[lag == 3].unique().tolist() == [-70.0 * 3 * 0.3125]  # by hand: -65.625
+    assert got[lag == 0].unique().tolist() == [0.0]
+    assert core.step(action).terms["latency_action_rate"].abs().sum() == 0  # no change
+    core.physics.set_ranges(dataclasses.replace(randomization, latency=(0, 0)))
+    action[:, 0] = -0.5
+    assert torch.equal(core.step(action).terms["latency_action_rate"], torch.zeros(16).double())
+    assert torch.equal(core.physics.latency, lag)  # the draws stay until each env resets
+    # the one-env float pipeline counts the same
+    single = Core(config, 1, seed=2)
+    single.reset()
+    assert int(single.physics.latency[0]) == 3  # this seed's draw
+    first = torch.zeros(12)
+    first[0], first[3] = 0.5, -0.25
+    assert SingleStep(single).step(first.numpy()).terms["latency_action_rate"] == -65.625
+
+
 @pytest.mark.parametrize(
     "bad",
     [
@@ -223,6 +256,8 @@ def test_the_action_rate_costs_each_change_from_the_episodes_zero_start():
         dict(tracking=float("nan")),
         dict(alive=1e9),
         dict(action_rate=-1.0),
+        dict(latency_action_rate=-70.0),
+        dict(latency_action_rate=float("nan")),
         dict(sigma_per_speed=-0.1),
         dict(sigma_per_speed=float("inf")),
     ],
