@@ -170,7 +170,8 @@ class Shaping:
     late stage can raise it (--late-action-rate)."""
     latency_action_rate: float = 0.0
     """Cost per unit of the action's squared change (``action_rate``'s quantity) per
-    substep of each env's drawn servo latency, under the name ``latency_action_rate``: 70
+    substep of each env's servo delay (``PhysicsRandomizer.lag``: its drawn latency, 0
+    where no delay applies), under the name ``latency_action_rate``: 70
     costs 70 x that change where the servos lag one substep, 210 at three, nothing without
     a lag. A size >= 0; 0: the term at weight 0 (exact zeros)."""
     kind_tracking: float = 0.0

@@ -240,6 +240,9 @@ def test_the_latency_action_rate_costs_the_change_per_substep_of_each_env_s_dela
     action[:, 0] = -0.5
     assert torch.equal(core.step(action).terms["latency_action_rate"], torch.zeros(16).double())
     assert torch.equal(core.physics.latency, lag)  # the draws stay until each env resets
+    still = Core(dataclasses.replace(config, randomization=None), 2, seed=1)  # no delay at all
+    still.reset()
+    assert still.step(action[:2]).terms["latency_action_rate"].tolist() == [0.0, 0.0]
     # the one-env float pipeline counts the same
     single = Core(config, 1, seed=2)
     single.reset()
