@@ -335,14 +335,17 @@ class PhysicsRandomizer:
         """Each env's servo delay now, in substeps: its drawn ``latency``, or 0 wherever
         ``delay`` applies none (no randomisation, or a latency range of (0, 0), whose
         running episodes keep their older draws). Shape: (N,) int64."""
-        if self.randomization is None or self.randomization.latency == (0, 0):
-            return torch.zeros_like(self.latency)
-        return self.latency
+        return self.latency if self._delays() else torch.zeros_like(self.latency)
+
+    def _delays(self) -> bool:
+        """Whether ``delay`` delays anything: drawn physics with a latency range other
+        than (0, 0)."""
+        return self.randomization is not None and self.randomization.latency != (0, 0)
 
     def delay(self, ctrl: np.ndarray) -> np.ndarray:
         """The servo targets each env applies, ``latency`` substeps late: the end of
         the last period's targets, then the start of this one's. (N, K, 12) -> same."""
-        if self.randomization is None or self.randomization.latency == (0, 0):
+        if not self._delays():
             return ctrl
         current = torch.from_numpy(ctrl)
         k = ctrl.shape[1]
