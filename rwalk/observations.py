@@ -255,6 +255,10 @@ COMMON_PIECES: dict[str, ObsPiece] = {
                         "privileged: the env's randomised physics, centred and scaled "
                         "(rwalk.randomization)",
                         mirror=mirrors.signed([p.mirror for p in PHYSICS_PARAMS])),
+    "servo_lag": ObsPiece(1, lambda s: s.physics.lag().unsqueeze(-1).to(torch.float64),
+                          "privileged: the servo delay that applies, in substeps (0 without "
+                          "one; rwalk.randomization.PhysicsRandomizer.lag)",
+                          mirror=mirrors.identity(1)),
     "heights": ObsPiece(4 * len(HEIGHT_OFFSETS),
                         lambda s: foot_clearances(s.sensors, s.terrain),
                         "privileged: each foot's height above the ground under it and 3 cm "

@@ -286,6 +286,7 @@ def test_a_record_written_before_a_field_existed_reads_that_field_as_its_default
     del data["env"]["observation_noise"]["torso_forward_speed"]  # (2026-12-06, sixty-ninth)
     del data["train"]["student_num_envs"]  # (2026-12-06, seventy-sixth)
     del data["train"]["distill_smoothness"]  # (2026-12-07, eighty-first)
+    del data["train"]["lag_smoothness"]  # (2026-12-08, eighty-seventh)
     (tmp_path / "config.json").write_text(json.dumps(data))
     record = read_record(tmp_path / "config.json", "rsl_rl", Training)
     assert record.env.shaping is None and record.env.command_interval is None

@@ -37,7 +37,7 @@ def test_the_model_is_symmetric_about_its_xz_plane():
 
 
 PIECES = ("sensors", "phase", "lateral_offset", "command", "cycle_speed", "physics", "heights",
-          "heights_under_feet", "last_action")  # fmt: skip
+          "heights_under_feet", "servo_lag", "last_action")  # fmt: skip
 
 
 @pytest.mark.parametrize("name", [*PIECES, "gait"])

@@ -217,6 +217,13 @@ class TrainConfig:
     weight times the mean square of the student's action change from one step to the next
     (rwalk.rl.distillation: smoother actions, measured against the delayed loop's
     oscillation in docs/learning.md); 0: rsl-rl's Distillation as it is"""
+    lag_smoothness: float = 0.0
+    """PPO with an MLP actor: beside PPO's loss, this weight times each minibatch's mean of
+    L x Σ (μ − a_last)², the actor's mean action's change from the action applied the
+    step before, L the servo delay that applies in substeps (0 without one): a cost on
+    the mean where the servos lag, which leaves the exploration noise alone
+    (rwalk.rl.ppo; docs/learning.md); the one command's student and fine-tune train
+    without it; 0: rsl-rl's PPO as it is"""
     symmetry: bool = True
     """augment PPO's minibatches with the left-right mirrored states and actions (rsl-rl's
     symmetry augmentation) where rsl-rl allows it: PPO with an MLP actor (recurrent actors
@@ -384,6 +391,12 @@ class TrainConfig:
         if self.distill_smoothness and not (self.distill or self.student_iterations):
             raise ValueError(f"--distill-smoothness {self.distill_smoothness} needs --distill or "
                              "--student-iterations: it shapes a distilled student")  # fmt: skip
+        require_at_least(self, 0, "lag_smoothness")
+        require_at_most(self, MAX_SMOOTHNESS, "lag_smoothness")
+        if self.lag_smoothness and (self.distill or self.actor != "mlp"):
+            raise ValueError(f"--lag-smoothness {self.lag_smoothness} needs PPO with --actor "
+                             f"mlp, got {'--distill' if self.distill else '--actor ' + self.actor}"
+                             )  # fmt: skip
         if self.finetune_num_envs and not self.finetune_iterations:
             raise ValueError(f"--finetune-num-envs {self.finetune_num_envs} needs "
                              "--finetune-iterations: it sizes the fine-tune")  # fmt: skip
@@ -474,6 +487,9 @@ class TrainConfig:
             "use_clipped_value_loss": False,
             "max_grad_norm": self.max_grad_norm,
         }
+        if self.lag_smoothness:
+            algorithm |= {"class_name": "rwalk.rl.ppo:LagSmoothedPPO",
+                          "lag_smoothness": self.lag_smoothness}  # fmt: skip
         if mirrored(self):
             algorithm["symmetry_cfg"] = {
                 "use_data_augmentation": True,
@@ -766,6 +782,7 @@ def student_training(teacher: Training) -> Training:
         teacher.train, teacher=False, teacher_obs=PRIVILEGED_PIECES, distill=teacher.run.log_dir,
         warm_start="", policy_obs=blind,
         actor=teacher.train.student_actor, student_iterations=0, student_num_envs=0,
+        lag_smoothness=0.0,
         nominal_physics_iterations=_student_stage(teacher.train),
         student_nominal_physics_iterations=None,
         symmetry=False, critic_obs=(), critic="", warm_start_critic="", warm_start_levels=False,
@@ -809,6 +826,7 @@ def finetune_training(student: Training, checkpoint: Path, teacher: Path,
     --finetune-num-envs envs (its settled-start pool in the student's proportion)."""
     train = dataclasses.replace(
         student.train, distill="", distill_levels=False, distill_smoothness=0.0,
+        lag_smoothness=0.0,
         finetune_iterations=0, finetune_num_envs=0,
         warm_start=str(checkpoint), warm_start_critic=str(teacher), warm_start_levels=True,
         critic=teacher_args.train.critic_kind, critic_obs=teacher_args.train.critic_obs,

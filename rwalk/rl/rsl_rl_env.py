@@ -31,8 +31,10 @@ class RslRlVecEnv(VecEnv):
     observation and every extra piece of the task, and for the critic also the
     task's privileged pieces (``Task.privileged``: the randomised physics and the
     ground around the feet, when the config varies the world). A distillation adds
-    the group ``teacher`` (the frozen teacher's pieces). The policy and teacher groups
-    carry ``EnvConfig.observation_noise`` (the same draw); the critic's is exact.
+    the group ``teacher`` (the frozen teacher's pieces), a PPO with a lag-priced
+    smoothness (``rwalk.rl.ppo``) the group ``smoothing`` (``servo_lag`` and
+    ``last_action``, which no model reads). The policy and teacher groups carry
+    ``EnvConfig.observation_noise`` (the same draw); the others are exact.
 
     ``extras["log"]`` (means over the episodes that ended this step):
     ``Episode_Reward/<term>`` (per-step mean of each reward term),
@@ -48,6 +50,8 @@ class RslRlVecEnv(VecEnv):
         env: the batched env (its core is stepped directly: no TensorDict per step).
         policy_obs: pieces of the policy group.
         critic_obs: pieces of the critic group.
+        teacher_obs: pieces of the group ``teacher`` (a distillation's).
+        smoothing_obs: pieces of the group ``smoothing`` (what ``rwalk.rl.ppo`` prices).
         reward_scale: rsl-rl sees ``reward * reward_scale`` (the env's reward is the
             spec's, ~300 per step; PPO's value clipping works in absolute units).
     """
@@ -59,17 +63,23 @@ class RslRlVecEnv(VecEnv):
         critic_obs: tuple[str, ...] | None = None,
         reward_scale: float = 1.0,
         teacher_obs: tuple[str, ...] = (),
+        smoothing_obs: tuple[str, ...] = (),
     ) -> None:
         every = ("observation", *env.core.task.extras())
         policy_obs = every if policy_obs is None else policy_obs
         critic_obs = (*every, *env.core.task.privileged()) if critic_obs is None else critic_obs
-        for name in (*policy_obs, *critic_obs, *teacher_obs):
+        for name in (*policy_obs, *critic_obs, *teacher_obs, *smoothing_obs):
             env.core.piece_size(name)  # raises ValueError naming an unknown piece
         if not reward_scale > 0:
             raise ValueError(f"reward_scale must be > 0, got {reward_scale!r}")
         self.env = env
         self.core = env.core
-        groups = {"policy": policy_obs, "critic": critic_obs, "teacher": teacher_obs}
+        groups = {
+            "policy": policy_obs,
+            "critic": critic_obs,
+            "teacher": teacher_obs,
+            "smoothing": smoothing_obs,
+        }
         self.groups = {name: tuple(pieces) for name, pieces in groups.items() if pieces}
         """The pieces of each observation group (an empty group is left out)."""
         self.reward_scale = float(reward_scale)

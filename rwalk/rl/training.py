@@ -56,6 +56,7 @@ from rwalk.rl.config import (
     student_training,
 )
 from rwalk.rl.legacy import as_training
+from rwalk.rl.ppo import SMOOTHING_OBS
 from rwalk.rl.record import ConfigError, decode_training, read_record, record_of, write_record
 from rwalk.rl.rsl_rl_env import RslRlVecEnv
 from rwalk.rl.runner import SafeDistillationRunner, SafeRunner
@@ -93,7 +94,8 @@ def make_env(args, teacher: Teacher | None = None) -> RslRlVecEnv:
                           teacher_obs=teacher.args.train.policy_obs)  # fmt: skip
     else:
         env = RslRlVecEnv(vec, policy_obs=train.policy_obs, critic_obs=train.critic_obs,
-                          reward_scale=train.reward_scale)  # fmt: skip
+                          reward_scale=train.reward_scale,
+                          smoothing_obs=SMOOTHING_OBS if train.lag_smoothness else ())  # fmt: skip
     if mirrored(train):  # every piece of every group mirrors (ValueError naming one that does not)
         for group in env.groups:
             env.mirror(group)
