@@ -31,6 +31,26 @@ def test_the_cost_and_its_gradient_by_hand():
     assert lag_pull(mean, smoothing, 3.0).tolist() == [[1.5, -3.0], [0.0, 0.0]]
 
 
+def test_each_sample_pairs_with_its_envs_mean_of_the_step_before_in_the_rollout():
+    """By hand: a rollout of 3 steps, 2 envs, 1 action value; env 1's episode ends at
+    step 0, so its step 1 starts an episode and has no pair."""
+    from types import SimpleNamespace
+
+    smoothing = torch.zeros(3, 2, 2)
+    smoothing[..., 0] = torch.tensor([[2.0, 3.0], [1.0, 3.0], [2.0, 1.0]])  # the delays
+    smoothing[..., 1] = 9.0  # the applied actions: replaced
+    means = torch.tensor([[[0.5], [0.25]], [[-0.5], [0.75]], [[1.0], [1.0]]])
+    dones = torch.tensor([[[0], [1]], [[0], [0]], [[0], [0]]], dtype=torch.uint8)
+    storage = SimpleNamespace(observations=TensorDict({"smoothing": smoothing}, [3, 2]),
+                              distribution_params=(means, None), dones=dones)  # fmt: skip
+    ppo = LagSmoothedPPO.__new__(LagSmoothedPPO)
+    ppo.storage = storage
+    ppo.pair_with_previous_means()
+    got = storage.observations["smoothing"]
+    assert got[..., 0].tolist() == [[0.0, 0.0], [1.0, 0.0], [2.0, 1.0]]
+    assert got[1:, :, 1].tolist() == [[0.5, 0.25], [-0.5, 0.75]]
+
+
 def _actor(obs: TensorDict) -> MLPModel:
     torch.manual_seed(0)
     groups = {"actor": ["policy"]}

@@ -219,8 +219,8 @@ class TrainConfig:
     oscillation in docs/learning.md); 0: rsl-rl's Distillation as it is"""
     lag_smoothness: float = 0.0
     """PPO with an MLP actor: beside PPO's loss, this weight times each minibatch's mean of
-    L x Σ (μ − a_last)², the actor's mean action's change from the action applied the
-    step before, L the servo delay that applies in substeps (0 without one): a cost on
+    L x Σ (μ − μ̄_prev)², the actor's mean action's change from its mean of the step
+    before (at rollout), L the servo delay that applies in substeps (0 without one): a cost on
     the mean where the servos lag, which leaves the exploration noise alone
     (rwalk.rl.ppo; docs/learning.md); the one command's student and fine-tune train
     without it; 0: rsl-rl's PPO as it is"""
