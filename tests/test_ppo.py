@@ -154,9 +154,11 @@ def test_the_weight_picks_the_algorithm_and_the_stages_after_train_without_it():
         (["--lag-smoothness", "nan"], "--lag-smoothness must be >= 0, got nan"),
         (["--lag-smoothness", "1e9"], "--lag-smoothness must be at most 1000, got 1000000000.0"),
         (["--lag-smoothness", "1", "--actor", "gru"],
-         "--lag-smoothness 1.0 needs PPO with --actor mlp, got --actor gru"),
+         "--lag-smoothness 1.0 needs PPO with an MLP actor and critic, got --actor gru"),
+        (["--lag-smoothness", "1", "--critic", "lstm"],
+         "--lag-smoothness 1.0 needs PPO with an MLP actor and critic, got --critic lstm"),
         (["--lag-smoothness", "1", "--distill", "x.pt"],
-         "--lag-smoothness 1.0 needs PPO with --actor mlp, got --distill"),
+         "--lag-smoothness 1.0 needs PPO with an MLP actor and critic, got --distill"),
     ],
 )  # fmt: skip
 def test_a_bad_weight_is_a_usage_error(flags, message, capsys):

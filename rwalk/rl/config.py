@@ -221,9 +221,9 @@ class TrainConfig:
     """PPO with an MLP actor: beside PPO's loss, this weight times each minibatch's mean of
     L x Σ (μ − μ̄_prev)², the actor's mean action's change from its mean of the step
     before (at rollout), L the servo delay that applies in substeps (0 without one): a cost on
-    the mean where the servos lag, which leaves the exploration noise alone
-    (rwalk.rl.ppo; docs/learning.md); the one command's student and fine-tune train
-    without it; 0: rsl-rl's PPO as it is"""
+    the mean where the servos lag, with no price on the exploration noise (rwalk.rl.ppo;
+    measured in docs/learning.md: the delayed loop worse, not better); the one command's
+    student and fine-tune train without it; 0: rsl-rl's PPO as it is"""
     symmetry: bool = True
     """augment PPO's minibatches with the left-right mirrored states and actions (rsl-rl's
     symmetry augmentation) where rsl-rl allows it: PPO with an MLP actor (recurrent actors
@@ -393,10 +393,13 @@ class TrainConfig:
                              "--student-iterations: it shapes a distilled student")  # fmt: skip
         require_at_least(self, 0, "lag_smoothness")
         require_at_most(self, MAX_SMOOTHNESS, "lag_smoothness")
-        if self.lag_smoothness and (self.distill or self.actor != "mlp"):
-            raise ValueError(f"--lag-smoothness {self.lag_smoothness} needs PPO with --actor "
-                             f"mlp, got {'--distill' if self.distill else '--actor ' + self.actor}"
-                             )  # fmt: skip
+        if self.lag_smoothness:  # (a recurrent model's minibatches are padded trajectories)
+            other = ("--distill" if self.distill else f"--actor {self.actor}"
+                     if self.actor != "mlp" else f"--critic {self.critic_kind}"
+                     if self.critic_kind != "mlp" else "")  # fmt: skip
+            if other:
+                raise ValueError(f"--lag-smoothness {self.lag_smoothness} needs PPO with an MLP "
+                                 f"actor and critic, got {other}")  # fmt: skip
         if self.finetune_num_envs and not self.finetune_iterations:
             raise ValueError(f"--finetune-num-envs {self.finetune_num_envs} needs "
                              "--finetune-iterations: it sizes the fine-tune")  # fmt: skip
